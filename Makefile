@@ -1,0 +1,35 @@
+# The two commands of the README: `make demo` and `make test`. Both create the virtual
+# environment when it is missing and install volucal with everything it needs.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.volucal-installed
+
+.PHONY: demo test test-core gui package bench lint clean
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[gui,test,dev]'
+	@touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/volucal demo --out demo-output
+
+# pytest's exit code 5 (no test collected) is a failure: a test run must run tests.
+test: $(STAMP)
+	@QT_QPA_PLATFORM=offscreen PYQTGRAPH_QT_LIB=PySide6 $(PY) -m pytest $(PYTEST_ARGS); \
+	status=$$?; if [ $$status -eq 5 ]; then echo "make test: no tests were collected" >&2; exit 1; fi; \
+	exit $$status
+
+gui: $(STAMP)
+	$(VENV)/bin/volucal gui
+
+bench: $(STAMP)
+	$(PY) benchmarks/run_all.py
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+
+clean:
+	rm -rf $(VENV) demo-output build dist *.egg-info

@@ -1,0 +1,21 @@
+"""Shared test settings: Qt runs offscreen, and the shared real data folder is optional."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared"
+
+
+@pytest.fixture
+def realdata() -> Path:
+    """../shared/realdata when present (never copied into the repository)."""
+    path = SHARED / "realdata"
+    if not path.is_dir():
+        pytest.skip("../shared/realdata is not present on this machine")
+    return path
