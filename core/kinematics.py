@@ -19,7 +19,7 @@ order the Y translation gains −y·EC0Y in X and the Z translation +z·EB0Z in 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -35,6 +35,7 @@ from .errors import (
     PolynomialBasis,
     axis_error_ids,
 )
+from ._chain_kernel import chain_error
 from .machine import AXES, AXIS_INDEX, Machine
 
 FloatArray = NDArray[np.float64]
@@ -191,10 +192,6 @@ class VolumetricModel:
         self.tables = {a: AxisPiecewise.from_model(model, a) for a in AXES}
         self.directions = axis_directions(model)
 
-    def _chunk(self, q: FloatArray, t: FloatArray) -> FloatArray:
-        values = {a: self.tables[a](q[:, AXIS_INDEX[a]]) for a in AXES}
-        return _compose(self.order, self.directions, q, t, values)
-
     def error(
         self,
         positions_mm: ArrayLike,
@@ -204,22 +201,39 @@ class VolumetricModel:
         """Volumetric error E (µm), shape (n, 3), at NC positions (n, 3) mm.
 
         ``tool_offset_mm`` is one (3,) vector or one per point (n, 3); default: the machine's.
-        Work is chunked and spread over ``threads`` (default: the CPU count).
+        Work is chunked (compiled kernel, :mod:`volucal.core._chain_kernel`) and spread over
+        ``threads`` (default: the CPU count).
         """
         q = np.ascontiguousarray(np.atleast_2d(np.asarray(positions_mm, dtype=float)))
         if q.shape[-1] != 3:
             raise ValueError(f"positions must have shape (n, 3), got {q.shape}")
         if tool_offset_mm is None:
             tool_offset_mm = self.model.machine.tool_offset_mm
-        t = np.asarray(tool_offset_mm, dtype=float)
-        per_point = t.ndim == 2
+        t = np.ascontiguousarray(np.atleast_2d(np.asarray(tool_offset_mm, dtype=float)))
+        per_point = np.ndim(tool_offset_mm) == 2
+        if per_point and len(t) != len(q):
+            raise ValueError(f"{len(t)} tool offsets for {len(q)} positions")
         out = np.empty_like(q)
         starts = range(0, len(q), CHUNK)
+        tables = [self.tables[a] for a in AXES]
+        order = np.array(self.order, dtype=np.int64)
 
         def work(start: int) -> None:
             stop = min(start + CHUNK, len(q))
-            tt = t[start:stop] if per_point else t
-            out[start:stop] = self._chunk(q[start:stop], tt)
+            chain_error(
+                q[start:stop],
+                t[start:stop] if per_point else t,
+                per_point,
+                order,
+                self.directions,
+                tables[0].breakpoints,
+                tables[0].coefficients,
+                tables[1].breakpoints,
+                tables[1].coefficients,
+                tables[2].breakpoints,
+                tables[2].coefficients,
+                out[start:stop],
+            )
 
         workers = threads or os.cpu_count() or 1
         if workers > 1 and len(q) > 2 * CHUNK:
@@ -473,7 +487,42 @@ def naive_error(
     return out
 
 
-ErrorFunctionOfPoints = Callable[[FloatArray], FloatArray]
+# --------------------------------------------------------------------------------------------
+# Angular error of the tool relative to the workpiece (what angular optics read)
+# --------------------------------------------------------------------------------------------
+
+
+def rotation_error(model: ErrorModel, positions_mm: ArrayLike) -> FloatArray:
+    """Rotation vector (µrad), shape (n, 3), of the tool frame relative to the workpiece frame.
+
+    Exact: the rotation R_1·R_2·R_3 of the chain converted to its rotation vector. Squareness
+    rotates axis directions, not the carried bodies, so it does not enter. At first order this is
+    the sum of the three axes' (EA, EB, EC).
+    """
+    q = np.atleast_2d(np.asarray(positions_mm, dtype=float))
+    total = np.broadcast_to(np.eye(3), (len(q), 3, 3)).copy()
+    for axis in model.machine.axis_order:
+        values = model.axis_values(axis, q[:, AXIS_INDEX[axis]])
+        total = total @ rotation_matrices(*(values[:, 3:].T * RAD_PER_URAD))
+    return rotation_vector(total) / RAD_PER_URAD
+
+
+def rotation_vector(matrices: FloatArray) -> FloatArray:
+    """Rotation vectors (rad) of rotation matrices (..., 3, 3), accurate for small angles."""
+    skew = 0.5 * np.stack(
+        [
+            matrices[..., 2, 1] - matrices[..., 1, 2],
+            matrices[..., 0, 2] - matrices[..., 2, 0],
+            matrices[..., 1, 0] - matrices[..., 0, 1],
+        ],
+        axis=-1,
+    )
+    sin_angle = np.linalg.norm(skew, axis=-1, keepdims=True)
+    cos_angle = 0.5 * (np.trace(matrices, axis1=-2, axis2=-1)[..., None] - 1.0)
+    angle = np.arctan2(sin_angle, cos_angle)
+    scale = np.where(sin_angle > 1e-300, angle / np.maximum(sin_angle, 1e-300), 1.0)
+    return np.asarray(skew * scale)
+
 
 __all__ = [
     "AXIS_ERROR_IDS",
@@ -483,6 +532,7 @@ __all__ = [
     "first_order_error",
     "jacobian",
     "naive_error",
+    "rotation_error",
     "rotation_matrices",
     "volumetric_error",
 ]

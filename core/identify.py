@@ -1,0 +1,858 @@
+"""Identification of the 21 geometric errors from any plan of laser lines.
+
+A line with start P0, direction u and optics offset t reads (REFERENCE §2)
+
+- linear:        m = u · E(P; t) + o_line
+- straightness:  m = v · E(P; t) + o_line + s_line · target
+- angular:       m = w · θ(P) + o_line
+
+with E the exact volumetric error (kinematics), θ the rotation of the tool relative to the
+workpiece, o a free zero offset per line (the laser is zeroed at its first target) and s a free
+slope per straightness line (optics alignment). The error functions are linear combinations of
+basis functions restricted to the gauge (zero at the reference; straightness with zero
+least-squares slope, so that the squareness errors carry the angle between the axes).
+
+The weighted least-squares problem is solved in normal-equation form with the geometric design
+evaluated once per target (runs at one target share it), then refined by Gauss–Newton on the exact
+chain until the update is far below the noise. Effects beyond the 21 errors (core/effects.py) add
+columns per reading. Rank, unidentifiable combinations and redundant lines come from the
+eigen-decomposition of the column-scaled normal matrix.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import cho_factor, cho_solve
+
+from .errors import (
+    AXIS_ERROR_IDS,
+    ERROR_INFO,
+    ERROR_IDS,
+    SQUARENESS_IDS,
+    Basis,
+    BSplineBasis,
+    ErrorFunction,
+    ErrorModel,
+    gauge_null_space,
+)
+from .kinematics import VolumetricModel, jacobian, rotation_error
+from .machine import AXES, AXIS_INDEX, Machine
+from .measurement import Measurement
+from .progress import CancelToken, ProgressCallback, check, report
+from .readings import QUANTITY_CODE, Readings, flatten
+from .userror import UserError
+
+FloatArray = NDArray[np.float64]
+
+#: Eigenvalues of the column-scaled normal matrix below this fraction of the largest are taken as
+#: zero: a direction whose singular value is 1e-6 of the strongest is not seen by the plan.
+RANK_TOLERANCE = 1e-12
+
+
+class IdentificationError(UserError):
+    """The plan or the data cannot support an identification."""
+
+
+# --------------------------------------------------------------------------------------------
+# Uncertainty budget (ISO 230-9 manner)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class UncertaintyBudget:
+    """Standard uncertainties of the measurement set-up, combined with the statistical band.
+
+    Defaults are those of a typical laser set-up (stated in docs/identification.md); the plan's
+    ``[uncertainty]`` table overrides them. Each contribution acts on the positioning errors as a
+    scale error over the distance from the reference (ISO 230-9, annex on linear positioning).
+    """
+
+    laser_ppm: float = 0.5  # laser accuracy, ±0.5 ppm (XL-80 class), rectangular
+    air_temp_sensor_c: float = 0.2  # air temperature sensor, ±0.2 °C, rectangular
+    material_temp_sensor_c: float = 0.1  # material sensor, ±0.1 °C, rectangular
+    expansion_coeff_ppm: float = 1.0  # uncertainty of α, ±1 ppm/°C, rectangular
+    material_offset_c: float = 0.5  # typical |T_material − 20 °C| during the session
+    dead_path_mm: float = 0.0  # dead path; an air-temperature change acts on it
+    air_temp_change_c: float = 0.3  # air temperature change during a line
+    cosine_urad: float = 100.0  # beam misalignment angle
+    abbe_mm: float = 0.0  # Abbe offset of the optics not accounted for
+    straightness_pct: float = 1.0  # straightness optics accuracy, % of the reading
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, float]) -> UncertaintyBudget:
+        unknown = sorted(set(values) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise IdentificationError(
+                f"[uncertainty]: unknown field(s) {', '.join(unknown)}; known: "
+                + ", ".join(cls.__dataclass_fields__)
+            )
+        return cls(**{k: float(v) for k, v in values.items()})
+
+    def scale_ppm(self) -> float:
+        """Combined standard uncertainty of a length scale, ppm."""
+        rect = 1 / np.sqrt(3)
+        refractive_ppm_per_c = 0.93  # air refractive index sensitivity (Edlén), ppm/°C
+        parts = [
+            self.laser_ppm * rect,
+            refractive_ppm_per_c * self.air_temp_sensor_c * rect,
+            11.5 * self.material_temp_sensor_c * rect,  # steel expansion on the sensor error
+            self.expansion_coeff_ppm * self.material_offset_c * rect,
+            0.5 * (self.cosine_urad * 1e-6) ** 2 * 1e6,
+        ]
+        return float(np.sqrt(np.sum(np.square(parts))))
+
+    def positioning_std_um(self, distance_mm: FloatArray, angle_urad: float = 0.0) -> FloatArray:
+        """Standard uncertainty (µm) of a positioning error at ``distance_mm`` from the reference."""
+        scale = self.scale_ppm() * 1e-6 * np.abs(distance_mm) * 1e3
+        dead = 0.93e-6 * self.dead_path_mm * self.air_temp_change_c * 1e3 / np.sqrt(3)
+        abbe = self.abbe_mm * angle_urad * 1e-3 / np.sqrt(3)
+        return np.asarray(np.sqrt(scale**2 + dead**2 + abbe**2))
+
+
+# --------------------------------------------------------------------------------------------
+# Options and results
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class IdentifyOptions:
+    """How to identify.
+
+    basis : per error id, the basis to use (others get B-splines every ``spacing_mm``).
+    spacing_mm : breakpoint spacing of the default cubic B-spline basis.
+    refine : Gauss–Newton on the exact chain after the linear solve.
+    budget : the uncertainty budget.
+    redundancy : compute which lines are redundant (one rank test per line).
+    """
+
+    basis: Mapping[str, Basis] = field(default_factory=dict)
+    spacing_mm: float = 50.0
+    refine: bool = True
+    max_iterations: int = 6
+    budget: UncertaintyBudget = field(default_factory=UncertaintyBudget)
+    redundancy: bool = True
+
+
+@dataclass(frozen=True)
+class Unidentifiable:
+    """Something the plan cannot see, in the metrologist's words."""
+
+    ids: tuple[str, ...]  # error ids involved
+    dimensions: int  # how many independent shapes are not determined
+    message: str
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    rank: int
+    unknowns: int
+    unidentifiable: tuple[Unidentifiable, ...]
+    redundant_lines: tuple[str, ...]
+    identified_ids: tuple[str, ...]  # errors fully determined by the plan
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "rank": self.rank,
+            "unknowns": self.unknowns,
+            "unidentifiable": [u.message for u in self.unidentifiable],
+            "unidentifiable_ids": sorted({i for u in self.unidentifiable for i in u.ids}),
+            "redundant_lines": list(self.redundant_lines),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class Identification:
+    """The identified model and everything needed to judge it."""
+
+    model: ErrorModel
+    covariance: FloatArray  # (P, P) over model.parameters (statistical part)
+    identifiability: Identifiability
+    readings: Readings
+    residual: FloatArray  # measured − predicted, per reading (µm or µrad)
+    predicted: FloatArray
+    offsets: dict[str, float]
+    slopes: dict[str, float]
+    effects: tuple[object, ...]
+    effect_parameters: tuple[FloatArray, ...]
+    effect_covariances: tuple[FloatArray, ...]
+    sigma_scale: float  # a posteriori standard deviation of unit weight
+    iterations: int
+    budget: UncertaintyBudget
+    system: LinearSystem
+
+    def band(self, eid: str, position_mm: FloatArray | None = None, count: int = 101
+             ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(positions mm, value, standard uncertainty) of an error over its stroke.
+
+        The standard uncertainty combines the statistical covariance with the budget (for the
+        positioning errors). Squareness: one value (positions empty).
+        """
+        model = self.model
+        sl = model.parameter_slices[eid]
+        if eid in SQUARENESS_IDS:
+            std = float(np.sqrt(max(self.covariance[sl, sl][0, 0], 0.0)))
+            return np.empty(0), np.array([model.squareness_urad[eid]]), np.array([std])
+        f = model.functions[eid]
+        axis = ERROR_INFO[eid].axis
+        assert axis is not None
+        if position_mm is None:
+            low, high = model.machine.stroke(axis)
+            position_mm = np.linspace(low, high, count)
+        design = f.basis.design(position_mm)
+        cov = self.covariance[sl, sl]
+        var = np.einsum("ij,jk,ik->i", design, cov, design)
+        var = np.maximum(var, 0.0)
+        if ERROR_INFO[eid].kind == "positioning":
+            distance = position_mm - model.machine.reference(axis)
+            var = var + self.budget.positioning_std_um(distance) ** 2
+        return position_mm, f(position_mm), np.sqrt(var)
+
+    def is_identified(self, eid: str) -> bool:
+        return eid in self.identifiability.identified_ids
+
+
+# --------------------------------------------------------------------------------------------
+# The linear system
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ColumnBlock:
+    kind: str  # "error", "offset", "slope", "effect"
+    key: str  # error id, line name or effect label
+    columns: slice
+    line: int | None = None  # the only line this block acts on, if any
+
+
+@dataclass(eq=False)
+class LinearSystem:
+    """Weighted least squares in normal-equation form with per-line contributions.
+
+    ``normal`` = AᵀWA and ``rhs`` = AᵀWy over all readings; ``line_normal[l]`` and
+    ``line_rhs[l]`` are the parts that line l contributes (for leave-one-line-out).
+    """
+
+    blocks: list[ColumnBlock]
+    normal: FloatArray
+    rhs: FloatArray
+    line_normal: list[FloatArray]
+    line_rhs: list[FloatArray]
+    target_design: FloatArray  # (T, p_target): geometric + nuisance columns per target
+    target_of_reading: NDArray[np.int64]
+    effect_design: FloatArray  # (n, p_effect)
+    y: FloatArray  # the (pseudo-)observations of this linearisation
+    weights: FloatArray
+
+    @property
+    def size(self) -> int:
+        return self.normal.shape[0]
+
+    def design_rows(self, mask: NDArray[np.bool_] | None = None) -> FloatArray:
+        """Explicit rows of A for the readings in ``mask`` (all by default)."""
+        idx = self.target_of_reading if mask is None else self.target_of_reading[mask]
+        eff = self.effect_design if mask is None else self.effect_design[mask]
+        return np.hstack([self.target_design[idx], eff])
+
+    def line_columns(self, line: int) -> NDArray[np.int64]:
+        cols = [np.arange(b.columns.start, b.columns.stop) for b in self.blocks if b.line == line]
+        return np.concatenate(cols) if cols else np.empty(0, dtype=np.int64)
+
+
+def _column_scale(normal: FloatArray) -> FloatArray:
+    """1/‖column‖ for the columns of A (from AᵀA's diagonal); columns whose norm is below 1e-12
+    of the largest are rounding noise of an unseen parameter and are left unscaled, so that
+    they stay (numerically) zero instead of being blown up to unit size."""
+    diag = np.diag(normal).copy()
+    seen = diag > 1e-24 * max(float(diag.max(initial=0.0)), 1e-300)
+    return np.where(seen, 1.0 / np.sqrt(np.where(seen, diag, 1.0)), 1.0)
+
+
+def _scaled_pinv(normal: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Pseudo-inverse of a normal matrix via the column-scaled eigen-decomposition.
+
+    Returns (pinv, scale, eigenvalues, eigenvectors) in scaled coordinates.
+    """
+    scale = _column_scale(normal)
+    scaled = normal * scale[:, None] * scale[None, :]
+    values, vectors = np.linalg.eigh(scaled)
+    keep = values > RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
+    inv_values = np.where(keep, 1.0 / np.where(keep, values, 1.0), 0.0)
+    pinv_scaled = (vectors * inv_values) @ vectors.T
+    return pinv_scaled * scale[:, None] * scale[None, :], scale, values, vectors
+
+
+@dataclass(frozen=True, eq=False)
+class _Subspace:
+    """The identifiable subspace of a system, fixed in the column scaling of its first
+    linearisation: x = scale · basis · z."""
+
+    scale: FloatArray
+    basis: FloatArray  # (P, rank), orthonormal in scaled coordinates
+
+    @classmethod
+    def of(cls, normal: FloatArray) -> _Subspace:
+        _, scale, values, vectors = _scaled_pinv(normal)
+        keep = values > RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
+        return cls(scale, vectors[:, keep])
+
+    def _reduced(self, normal: FloatArray) -> tuple[FloatArray, FloatArray]:
+        t = self.basis * self.scale[:, None]  # x = t z
+        return t, t.T @ normal @ t
+
+    def solve(self, normal: FloatArray, rhs: FloatArray) -> FloatArray:
+        t, reduced = self._reduced(normal)
+        return np.asarray(t @ np.linalg.solve(reduced, t.T @ rhs))
+
+    def inverse(self, normal: FloatArray) -> FloatArray:
+        """Covariance factor (AᵀWA)⁺ restricted to the identifiable subspace."""
+        t, reduced = self._reduced(normal)
+        return np.asarray(t @ np.linalg.inv(reduced) @ t.T)
+
+
+def solve_normal(normal: FloatArray, rhs: FloatArray) -> FloatArray:
+    """Minimum-norm (in scaled coordinates) solution of the normal equations; fast path by a
+    Cholesky factorisation with a tiny ridge for rank-deficient systems."""
+    scale = _column_scale(normal)
+    scaled = normal * scale[:, None] * scale[None, :]
+    scaled[np.diag_indices_from(scaled)] += 1e-11
+    try:
+        factor = cho_factor(scaled, lower=True, check_finite=False)
+        return np.asarray(cho_solve(factor, rhs * scale, check_finite=False) * scale)
+    except np.linalg.LinAlgError:
+        pinv, *_ = _scaled_pinv(normal)
+        return np.asarray(pinv @ rhs)
+
+
+# --------------------------------------------------------------------------------------------
+# Building the system
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class _Targets:
+    """Unique (line, target) points of a measurement."""
+
+    line: NDArray[np.int64]
+    position_mm: FloatArray
+    reflector_mm: FloatArray
+    projection: FloatArray
+    quantity: NDArray[np.int64]
+    target_mm: FloatArray
+    of_reading: NDArray[np.int64]
+
+
+def _unique_targets(readings: Readings) -> _Targets:
+    key = readings.line * 1_000_000 + readings.target
+    unique, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    return _Targets(
+        readings.line[first],
+        readings.position_mm[first],
+        readings.reflector_mm[first],
+        readings.projection[first],
+        readings.quantity[first],
+        readings.target_mm[first],
+        inverse.astype(np.int64),
+    )
+
+
+def model_with_bases(machine: Machine, options: IdentifyOptions) -> ErrorModel:
+    """A zero model with the bases identification uses."""
+
+    def basis_for(axis: str, eid: str) -> Basis:
+        if eid in options.basis:
+            return options.basis[eid]
+        low, high = machine.stroke(axis)
+        return BSplineBasis.uniform(low, high, options.spacing_mm)
+
+    return ErrorModel.zero(machine, basis_for)
+
+
+@dataclass(frozen=True, eq=False)
+class Gauge:
+    """Block-diagonal map from free gauge coordinates θ to model parameters: p = N θ."""
+
+    matrix: FloatArray  # (P, G)
+    blocks: dict[str, slice]  # error id -> columns of θ
+
+    @classmethod
+    def for_model(cls, model: ErrorModel) -> Gauge:
+        columns = []
+        blocks: dict[str, slice] = {}
+        start = 0
+        for eid in AXIS_ERROR_IDS:
+            f = model.functions[eid]
+            axis = ERROR_INFO[eid].axis
+            assert axis is not None
+            null = gauge_null_space(f.basis, model.machine.reference(axis), ERROR_INFO[eid].is_straightness)
+            columns.append(null)
+            blocks[eid] = slice(start, start + null.shape[1])
+            start += null.shape[1]
+        for eid in SQUARENESS_IDS:
+            columns.append(np.ones((1, 1)))
+            blocks[eid] = slice(start, start + 1)
+            start += 1
+        rows = sum(c.shape[0] for c in columns)
+        matrix = np.zeros((rows, start))
+        r = 0
+        for c, eid in zip(columns, ERROR_IDS, strict=True):
+            matrix[r : r + c.shape[0], blocks[eid]] = c
+            r += c.shape[0]
+        return cls(matrix, blocks)
+
+    @property
+    def size(self) -> int:
+        return self.matrix.shape[1]
+
+
+def _geometric_rows(model: ErrorModel, targets: _Targets) -> FloatArray:
+    """d(reading)/d(model parameters) per target (T, P): exact chain for displacement optics,
+    the first-order sum of the axes' angles for angular optics."""
+    rows = np.zeros((len(targets.line), model.parameter_count))
+    angular = targets.quantity == QUANTITY_CODE["angular"]
+    disp = ~angular
+    if disp.any():
+        jac = jacobian(model, targets.position_mm[disp], targets.reflector_mm[disp])
+        rows[disp] = np.einsum("nc,ncp->np", targets.projection[disp], jac)
+    if angular.any():
+        slices = model.parameter_slices
+        q = targets.position_mm[angular]
+        w = targets.projection[angular]
+        block = np.zeros((int(angular.sum()), model.parameter_count))
+        for axis in AXES:
+            for j, component in enumerate("ABC"):
+                eid = f"E{component}{axis}"
+                design = model.functions[eid].basis.design(q[:, AXIS_INDEX[axis]])
+                block[:, slices[eid]] += w[:, j, None] * design
+        rows[angular] = block
+    return rows
+
+
+def predict_geometric(model: ErrorModel, targets: _Targets) -> FloatArray:
+    """Exact prediction of each target's reading from the 21 errors (without nuisances)."""
+    out = np.zeros(len(targets.line))
+    angular = targets.quantity == QUANTITY_CODE["angular"]
+    disp = ~angular
+    if disp.any():
+        e = VolumetricModel(model).error(targets.position_mm[disp], targets.reflector_mm[disp])
+        out[disp] = np.einsum("nc,nc->n", e, targets.projection[disp])
+    if angular.any():
+        rot = rotation_error(model, targets.position_mm[angular])
+        out[angular] = np.einsum("nc,nc->n", rot, targets.projection[angular])
+    return out
+
+
+class EffectTerm:
+    """What identification needs of an effect (core/effects.py implements it)."""
+
+    label: str
+    line_index: int | None  # the only line it acts on (a set-up effect), or None
+
+    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:  # (n, k)
+        raise NotImplementedError
+
+
+def build_system(
+    readings: Readings,
+    targets: _Targets,
+    model: ErrorModel,
+    gauge: Gauge,
+    effects: Sequence[EffectTerm],
+    pseudo_y: FloatArray,
+) -> LinearSystem:
+    """Assemble the normal equations for one linearisation."""
+    n_lines = len(readings.lines)
+    geo = _geometric_rows(model, targets) @ gauge.matrix  # (T, G)
+    blocks: list[ColumnBlock] = [
+        ColumnBlock("error", eid, gauge.blocks[eid]) for eid in ERROR_IDS
+    ]
+    start = gauge.size
+    offset_cols = np.zeros((len(targets.line), n_lines))
+    offset_cols[np.arange(len(targets.line)), targets.line] = 1.0
+    for index, line in enumerate(readings.lines):
+        blocks.append(ColumnBlock("offset", line.name, slice(start + index, start + index + 1), index))
+    start += n_lines
+    straight_lines = [i for i, line in enumerate(readings.lines) if line.spec.quantity == "straightness"]
+    slope_cols = np.zeros((len(targets.line), len(straight_lines)))
+    for k, index in enumerate(straight_lines):
+        mask = targets.line == index
+        # slope per metre of travel keeps the columns on the scale of the others
+        slope_cols[mask, k] = targets.target_mm[mask] / 1000.0
+        blocks.append(ColumnBlock("slope", readings.lines[index].name, slice(start + k, start + k + 1), index))
+    start += len(straight_lines)
+    target_design = np.hstack([geo, offset_cols, slope_cols])
+    effect_parts = []
+    for effect in effects:
+        d = effect.design(readings, model)
+        effect_parts.append(d)
+        blocks.append(ColumnBlock("effect", effect.label, slice(start, start + d.shape[1]), effect.line_index))
+        start += d.shape[1]
+    effect_design = np.hstack(effect_parts) if effect_parts else np.zeros((len(readings), 0))
+    weights = 1.0 / readings.sigma**2
+    idx = targets.of_reading
+    p_t = target_design.shape[1]
+    line_normal, line_rhs = [], []
+    normal = np.zeros((start, start))
+    rhs = np.zeros(start)
+    for index in range(n_lines):
+        rmask = readings.line == index
+        tmask = targets.line == index
+        t_index = np.flatnonzero(tmask)
+        local = np.searchsorted(t_index, idx[rmask])
+        w = weights[rmask]
+        w_t = np.bincount(local, weights=w, minlength=len(t_index))
+        wy_t = np.bincount(local, weights=w * pseudo_y[rmask], minlength=len(t_index))
+        g = target_design[t_index]
+        m = np.zeros((start, start))
+        b = np.zeros(start)
+        m[:p_t, :p_t] = (g * w_t[:, None]).T @ g
+        b[:p_t] = g.T @ wy_t
+        if effect_design.shape[1]:
+            e = effect_design[rmask]
+            we = e * w[:, None]
+            agg = np.zeros((len(t_index), e.shape[1]))
+            np.add.at(agg, local, we)
+            cross = g.T @ agg
+            m[:p_t, p_t:] = cross
+            m[p_t:, :p_t] = cross.T
+            m[p_t:, p_t:] = e.T @ we
+            b[p_t:] = we.T @ pseudo_y[rmask]
+        line_normal.append(m)
+        line_rhs.append(b)
+        normal += m
+        rhs += b
+    return LinearSystem(
+        blocks, normal, rhs, line_normal, line_rhs, target_design, idx, effect_design, pseudo_y, weights
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Identifiability
+# --------------------------------------------------------------------------------------------
+
+_KIND_WORDS = {
+    "positioning": "positioning",
+    "straightness": "straightness",
+    "roll": "roll",
+    "pitch": "pitch",
+    "yaw": "yaw",
+    "tilt": "tilt",
+    "squareness": "squareness",
+}
+
+
+def _describe(eid: str) -> str:
+    info = ERROR_INFO[eid]
+    if info.axis is None:
+        return f"{info.description} ({eid})"
+    if info.kind == "straightness":
+        return f"straightness of {info.axis} in {info.component} ({eid})"
+    return f"{_KIND_WORDS[info.kind]} of {info.axis} ({eid})"
+
+
+def identifiability(system: LinearSystem, gauge: Gauge, lines: Sequence[str],
+                    redundancy: bool = True) -> Identifiability:
+    """Rank, what the plan cannot see (named), and which lines are redundant."""
+    _, scale, values, vectors = _scaled_pinv(system.normal)
+    limit = RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
+    null = vectors[:, values <= limit]  # scaled coordinates
+    rank = int(np.sum(values > limit))
+    messages: list[Unidentifiable] = []
+    unidentified: set[str] = set()
+    block_of = {b.key: b for b in system.blocks if b.kind == "error"}
+    if null.shape[1]:
+        for eid in ERROR_IDS:
+            cols = block_of[eid].columns
+            part = null[cols]
+            if part.size == 0:
+                continue
+            s = np.linalg.svd(part, compute_uv=False)
+            dims = int(np.sum(s > 1e-6))
+            if dims == 0:
+                continue
+            unidentified.add(eid)
+            total = cols.stop - cols.start
+            # partners: other errors moving together with this one in the null space
+            u, s_full, vt = np.linalg.svd(part, full_matrices=False)
+            combos = null @ vt[:dims].T
+            partners = []
+            for other in ERROR_IDS:
+                if other == eid:
+                    continue
+                share = np.linalg.norm(combos[block_of[other].columns], axis=0)
+                if np.any(share > 0.1):
+                    partners.append(other)
+            nuisance = [b for b in system.blocks if b.kind in ("offset", "slope")]
+            absorbed = any(
+                np.any(np.linalg.norm(combos[b.columns], axis=0) > 0.1) for b in nuisance
+            )
+            if dims == total and not partners:
+                text = f"{_describe(eid)} is not seen by this plan"
+            elif dims == total:
+                text = (
+                    f"{_describe(eid)} is not determined: only its combination with "
+                    f"{', '.join(partners)} is seen"
+                )
+            else:
+                text = f"{_describe(eid)}: {dims} of {total} shape functions are not determined"
+                if partners:
+                    text += f" (confounded with {', '.join(partners)})"
+            if absorbed and not partners:
+                text += " (absorbed by the lines' zero offsets and alignment slopes)"
+            messages.append(Unidentifiable((eid, *partners), dims, text))
+    redundant: list[str] = []
+    if redundancy:
+        scaled = system.normal * scale[:, None] * scale[None, :]
+        for index, name in enumerate(lines):
+            own = system.line_columns(index)
+            keep = np.setdiff1d(np.arange(system.size), own)
+            m = (system.normal - system.line_normal[index]) * scale[:, None] * scale[None, :]
+            m = m[np.ix_(keep, keep)]
+            ev = np.linalg.eigvalsh(m)
+            lim = RANK_TOLERANCE * max(np.linalg.eigvalsh(scaled).max(), 1e-300)
+            if int(np.sum(ev > lim)) == rank - len(own):
+                redundant.append(name)
+    identified = tuple(e for e in ERROR_IDS if e not in unidentified)
+    return Identifiability(rank, system.size, tuple(messages), tuple(redundant), identified)
+
+
+# --------------------------------------------------------------------------------------------
+# Identification
+# --------------------------------------------------------------------------------------------
+
+
+def identify(
+    measurement: Measurement,
+    options: IdentifyOptions | None = None,
+    effects: Sequence[EffectTerm] = (),
+    readings: Readings | None = None,
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken | None = None,
+) -> Identification:
+    """Identify the 21 errors (and the given effects' parameters) from a measurement."""
+    options = options or IdentifyOptions()
+    if not measurement.lines:
+        raise IdentificationError("the measurement has no lines to identify from")
+    readings = readings if readings is not None else flatten(measurement)
+    if len(readings) == 0:
+        raise IdentificationError("the measurement has no valid readings")
+    targets = _unique_targets(readings)
+    model = model_with_bases(measurement.machine, options)
+    gauge = Gauge.for_model(model)
+    theta = np.zeros(gauge.size)
+    iterations = 0
+    system: LinearSystem | None = None
+    subspace: _Subspace | None = None
+    rank_info: Identifiability | None = None
+    solution = np.zeros(0)
+    max_iterations = options.max_iterations if options.refine else 1
+    noise = float(np.median(readings.sigma))
+    for iterations in range(1, max_iterations + 1):
+        check(cancel)
+        report(progress, 0.1 + 0.7 * (iterations - 1) / max_iterations, f"linear solve {iterations}")
+        current = model.with_parameters(gauge.matrix @ theta)
+        rows = _geometric_rows(current, targets) @ gauge.matrix
+        base = predict_geometric(current, targets) - rows @ theta
+        pseudo_y = readings.value - base[targets.of_reading]
+        system = build_system(readings, targets, current, gauge, effects, pseudo_y)
+        if subspace is None:
+            # What the plan can see is decided once, on the first-order system: nonlinear
+            # refinement must not turn rounding-level couplings into "identified" directions.
+            subspace = _Subspace.of(system.normal)
+            rank_info = identifiability(
+                system, gauge, [line.name for line in readings.lines], options.redundancy
+            )
+        solution = subspace.solve(system.normal, system.rhs)
+        new_theta = solution[: gauge.size]
+        change = _max_value_change(model, gauge, theta, new_theta)
+        theta = new_theta
+        if change < 1e-2 * noise:
+            break
+    assert system is not None and subspace is not None and rank_info is not None
+    model = model.with_parameters(gauge.matrix @ theta)
+    check(cancel)
+    report(progress, 0.85, "uncertainty")
+    design_residual = system.y - _apply(system, solution)
+    final_pred = readings.value - design_residual
+    dof = max(len(readings) - rank_info.rank, 1)
+    chi2 = float(np.sum(system.weights * design_residual**2))
+    sigma_scale = float(np.sqrt(chi2 / dof))
+    cov_all = subspace.inverse(system.normal) * sigma_scale**2
+    g = gauge.size
+    covariance = gauge.matrix @ cov_all[:g, :g] @ gauge.matrix.T
+    offsets, slopes, eff_params, eff_cov = {}, {}, [], []
+    for block in system.blocks:
+        if block.kind == "offset":
+            offsets[block.key] = float(solution[block.columns][0])
+        elif block.kind == "slope":
+            slopes[block.key] = float(solution[block.columns][0]) / 1000.0  # µm per mm
+        elif block.kind == "effect":
+            eff_params.append(solution[block.columns].copy())
+            eff_cov.append(cov_all[block.columns, block.columns].copy())
+    report(progress, 1.0, "identified")
+    return Identification(
+        model=model,
+        covariance=covariance,
+        identifiability=rank_info,
+        readings=readings,
+        residual=design_residual,
+        predicted=final_pred,
+        offsets=offsets,
+        slopes=slopes,
+        effects=tuple(effects),
+        effect_parameters=tuple(eff_params),
+        effect_covariances=tuple(eff_cov),
+        sigma_scale=sigma_scale,
+        iterations=iterations,
+        budget=options.budget,
+        system=system,
+    )
+
+
+def _apply(system: LinearSystem, solution: FloatArray) -> FloatArray:
+    """A·x for every reading."""
+    p_t = system.target_design.shape[1]
+    out = (system.target_design @ solution[:p_t])[system.target_of_reading]
+    if system.effect_design.shape[1]:
+        out = out + system.effect_design @ solution[p_t:]
+    return out
+
+
+def _max_value_change(model: ErrorModel, gauge: Gauge, old: FloatArray, new: FloatArray) -> float:
+    """Largest change of any error value over its stroke (µm or µrad) between two solutions."""
+    delta = model.with_parameters(gauge.matrix @ (new - old))
+    worst = max(abs(v) for v in delta.squareness_urad.values())
+    for eid in AXIS_ERROR_IDS:
+        _, values = delta.sampled(eid, 41)
+        worst = max(worst, float(np.max(np.abs(values))))
+    return worst
+
+
+# --------------------------------------------------------------------------------------------
+# Cross-validation
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CrossValidation:
+    """Cross-validated error of a fit."""
+
+    method: str  # "leave-one-line-out" or "held-out blocks"
+    rms_um: float  # over displacement readings
+    rms_urad: float  # over angular readings (nan if none)
+    per_line_rms: dict[str, float]
+    residual: FloatArray  # cross-validated residual per reading
+
+
+def cross_validate(system: LinearSystem, readings: Readings, redundant: Sequence[str] | None = None
+                   ) -> CrossValidation:
+    """Leave-one-line-out cross-validated residuals from the normal equations.
+
+    For each line: fit without it, predict it, then fit only that line's own columns (its zero
+    offset, straightness slope and set-up effects) to what is left — the laser's zero and
+    alignment are unknown for a line never seen. When some lines are not redundant (leaving them
+    out loses rank), held-out contiguous blocks of targets are used instead.
+    """
+    names = [line.name for line in readings.lines]
+    if redundant is not None and set(names) - set(redundant):
+        return _cross_validate_blocks(system, readings)
+    residual = np.empty(len(readings))
+    for index, name in enumerate(names):
+        own = system.line_columns(index)
+        keep = np.setdiff1d(np.arange(system.size), own)
+        m = system.normal - system.line_normal[index]
+        b = system.rhs - system.line_rhs[index]
+        x = np.zeros(system.size)
+        x[keep] = solve_normal(m[np.ix_(keep, keep)], b[keep])
+        mask = readings.line == index
+        rows = system.design_rows(mask)
+        r = system.y[mask] - rows @ x
+        if own.size:
+            local = rows[:, own]
+            w = np.sqrt(system.weights[mask])
+            coef, *_ = np.linalg.lstsq(local * w[:, None], r * w, rcond=None)
+            r = r - local @ coef
+        residual[mask] = r
+    return _summarise("leave-one-line-out", residual, readings)
+
+
+def _cross_validate_blocks(system: LinearSystem, readings: Readings, folds: int = 5) -> CrossValidation:
+    """Held-out contiguous blocks of targets within every line (all lines stay in the fit)."""
+    residual = np.empty(len(readings))
+    fold_of = np.zeros(len(readings), dtype=int)
+    for index, line in enumerate(readings.lines):
+        mask = readings.line == index
+        count = len(line.data.targets_mm)
+        fold_of[mask] = np.minimum(readings.target[mask] * folds // max(count, 1), folds - 1)
+    rows_all = system.design_rows()
+    w_all = system.weights
+    for k in range(folds):
+        held = fold_of == k
+        rows = rows_all[held]
+        wr = rows * w_all[held, None]
+        m = system.normal - rows.T @ wr
+        b = system.rhs - wr.T @ system.y[held]
+        x = solve_normal(m, b)
+        residual[held] = system.y[held] - rows @ x
+    return _summarise("held-out blocks of targets", residual, readings)
+
+
+def _summarise(method: str, residual: FloatArray, readings: Readings) -> CrossValidation:
+    angular = readings.is_angular
+    disp = ~angular
+    rms_um = float(np.sqrt(np.mean(residual[disp] ** 2))) if disp.any() else float("nan")
+    rms_urad = float(np.sqrt(np.mean(residual[angular] ** 2))) if angular.any() else float("nan")
+    per_line = {
+        line.name: float(np.sqrt(np.mean(residual[readings.line == i] ** 2)))
+        for i, line in enumerate(readings.lines)
+    }
+    return CrossValidation(method, rms_um, rms_urad, per_line, residual)
+
+
+def residual_rms(identification: Identification) -> tuple[float, float]:
+    """RMS residual (µm over displacement readings, µrad over angular readings)."""
+    r = identification.residual
+    angular = identification.readings.is_angular
+    um = float(np.sqrt(np.mean(r[~angular] ** 2))) if (~angular).any() else float("nan")
+    urad = float(np.sqrt(np.mean(r[angular] ** 2))) if angular.any() else float("nan")
+    return um, urad
+
+
+def parameters_report(identification: Identification, count: int = 41) -> dict[str, dict[str, object]]:
+    """The report.json ``parameters`` block: basis, coefficients and sampled values with std."""
+    out: dict[str, dict[str, object]] = {}
+    model = identification.model
+    for eid in ERROR_IDS:
+        positions, values, std = identification.band(eid, count=count)
+        entry: dict[str, object] = {
+            "unit": ERROR_INFO[eid].unit,
+            "identified": identification.is_identified(eid),
+            "position_mm": positions.tolist(),
+            "value": values.tolist(),
+            "std": std.tolist(),
+        }
+        if eid in SQUARENESS_IDS:
+            entry["basis"] = {"kind": "constant"}
+            entry["coefficients"] = [model.squareness_urad[eid]]
+        else:
+            f = model.functions[eid]
+            entry["basis"] = f.basis.describe()
+            entry["coefficients"] = f.coefficients.tolist()
+        out[eid] = entry
+    return out
+
+
+EffectFactory = Callable[[Readings], Sequence[EffectTerm]]
+
+__all__ = [
+    "ErrorFunction",
+    "Identification",
+    "IdentifyOptions",
+    "UncertaintyBudget",
+    "cross_validate",
+    "identify",
+    "parameters_report",
+]
