@@ -180,6 +180,7 @@ class Identification:
     effect_parameters: tuple[FloatArray, ...]
     effect_covariances: tuple[FloatArray, ...]
     sigma_scale: float  # a posteriori standard deviation of unit weight
+    normal_inverse: FloatArray  # (AᵀWA)⁺ on the identifiable subspace, all columns
     iterations: int
     budget: UncertaintyBudget
     system: LinearSystem
@@ -462,8 +463,10 @@ def build_system(
     gauge: Gauge,
     effects: Sequence[EffectTerm],
     pseudo_y: FloatArray,
+    effect_model: ErrorModel | None = None,
 ) -> LinearSystem:
-    """Assemble the normal equations for one linearisation."""
+    """Assemble the normal equations for one linearisation (effects designed with
+    ``effect_model``, by default the linearisation point itself)."""
     n_lines = len(readings.lines)
     geo = _geometric_rows(model, targets) @ gauge.matrix  # (T, G)
     blocks: list[ColumnBlock] = [
@@ -486,7 +489,7 @@ def build_system(
     target_design = np.hstack([geo, offset_cols, slope_cols])
     effect_parts = []
     for effect in effects:
-        d = effect.design(readings, model)
+        d = effect.design(readings, effect_model or model)
         effect_parts.append(d)
         blocks.append(ColumnBlock("effect", effect.label, slice(start, start + d.shape[1]), effect.line_index))
         start += d.shape[1]
@@ -513,8 +516,9 @@ def build_system(
         if effect_design.shape[1]:
             e = effect_design[rmask]
             we = e * w[:, None]
-            agg = np.zeros((len(t_index), e.shape[1]))
-            np.add.at(agg, local, we)
+            agg = np.stack(
+                [np.bincount(local, weights=col, minlength=len(t_index)) for col in we.T], axis=-1
+            )
             cross = g.T @ agg
             m[:p_t, p_t:] = cross
             m[p_t:, :p_t] = cross.T
@@ -631,8 +635,14 @@ def identify(
     readings: Readings | None = None,
     progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
+    initial: ErrorModel | None = None,
 ) -> Identification:
-    """Identify the 21 errors (and the given effects' parameters) from a measurement."""
+    """Identify the 21 errors (and the given effects' parameters) from a measurement.
+
+    ``initial`` (a model with the same bases, e.g. a previous identification) is the first
+    linearisation point; effects whose design depends on the model (an Abbe offset acts through
+    the identified angles) need it.
+    """
     options = options or IdentifyOptions()
     if not measurement.lines:
         raise IdentificationError("the measurement has no lines to identify from")
@@ -642,7 +652,7 @@ def identify(
     targets = _unique_targets(readings)
     model = model_with_bases(measurement.machine, options)
     gauge = Gauge.for_model(model)
-    theta = np.zeros(gauge.size)
+    theta = np.zeros(gauge.size) if initial is None else gauge.matrix.T @ initial.parameters
     iterations = 0
     system: LinearSystem | None = None
     subspace: _Subspace | None = None
@@ -659,11 +669,18 @@ def identify(
         pseudo_y = readings.value - base[targets.of_reading]
         system = build_system(readings, targets, current, gauge, effects, pseudo_y)
         if subspace is None:
-            # What the plan can see is decided once, on the first-order system: nonlinear
-            # refinement must not turn rounding-level couplings into "identified" directions.
-            subspace = _Subspace.of(system.normal)
+            # What the plan can see is decided once, on the first-order system (the Jacobian at
+            # zero errors): nonlinear refinement must not turn second-order couplings into
+            # "identified" directions.
+            structural = system
+            if initial is not None:
+                zero = model.with_parameters(np.zeros(model.parameter_count))
+                structural = build_system(
+                    readings, targets, zero, gauge, effects, pseudo_y, effect_model=current
+                )
+            subspace = _Subspace.of(structural.normal)
             rank_info = identifiability(
-                system, gauge, [line.name for line in readings.lines], options.redundancy
+                structural, gauge, [line.name for line in readings.lines], options.redundancy
             )
         solution = subspace.solve(system.normal, system.rhs)
         new_theta = solution[: gauge.size]
@@ -680,7 +697,8 @@ def identify(
     dof = max(len(readings) - rank_info.rank, 1)
     chi2 = float(np.sum(system.weights * design_residual**2))
     sigma_scale = float(np.sqrt(chi2 / dof))
-    cov_all = subspace.inverse(system.normal) * sigma_scale**2
+    normal_inverse = subspace.inverse(system.normal)
+    cov_all = normal_inverse * sigma_scale**2
     g = gauge.size
     covariance = gauge.matrix @ cov_all[:g, :g] @ gauge.matrix.T
     offsets, slopes, eff_params, eff_cov = {}, {}, [], []
@@ -706,6 +724,7 @@ def identify(
         effect_parameters=tuple(eff_params),
         effect_covariances=tuple(eff_cov),
         sigma_scale=sigma_scale,
+        normal_inverse=normal_inverse,
         iterations=iterations,
         budget=options.budget,
         system=system,

@@ -19,7 +19,8 @@ Sign convention of the readings: deviation = actual − nominal (the plan's defa
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -325,9 +326,10 @@ class VirtualMachine:
             approach[:, moving] = np.sign(direction[moving]) * run_direction[r]
             commanded = nominal if compensation is None else compensation(nominal, approach)
             deviations[r] = self._read(spec, commanded, nominal, approach, times[r], reflector)
+        noise = laser.noise_urad if spec.quantity == "angular" else laser.noise_um
+        deviations += rng.normal(0.0, noise, deviations.shape)
         # the laser is zeroed once, at the first target of the first run
-        zero = deviations[0, 0]
-        deviations -= zero
+        deviations -= deviations[0, 0]
         if spec.quantity == "straightness":
             slope = rng.normal(0.0, laser.straightness_slope_urad) * 1e-3  # µm per mm
             deviations += slope * targets
@@ -336,8 +338,6 @@ class VirtualMachine:
                 theta = effect.angle_urad * 1e-6
                 # the laser reads the projection of the travel on a beam tilted by θ
                 deviations -= (1.0 - np.cos(theta)) * targets * 1e3
-        noise = laser.noise_urad if spec.quantity == "angular" else laser.noise_um
-        deviations += rng.normal(0.0, noise, deviations.shape)
         material = laser.material_temp_c + self.temperature_rise_c(np.array([clock, end_clock]))
         environment = Environment(
             air_temp_c=(laser.air_temp_c, laser.air_temp_c + 0.05),
@@ -400,3 +400,37 @@ __all__ = [
     "demo_machine",
     "random_truth",
 ]
+
+
+def write_session(
+    measurement: Measurement,
+    folder: str | Path,
+    plan_name: str = "plan.toml",
+    uncertainty: Mapping[str, float] | None = None,
+) -> Path:
+    """Write a measured session as Renishaw-style logs (.rtl linear and straightness, .rta
+    angular) plus a plan.toml that places each line, exactly as DESIGN.md specifies."""
+    from .io.plan import write_plan
+    from .io.rtl import write_rtl
+    from .measurement import Plan
+
+    folder = Path(folder)
+    specs = []
+    for line in measurement.lines:
+        spec = line.spec
+        file = spec.file or f"logs/{spec.name}.{'rta' if spec.quantity == 'angular' else 'rtl'}"
+        target = folder / file
+        target.parent.mkdir(parents=True, exist_ok=True)
+        user_text = {
+            "Machine": measurement.machine.name,
+            "Serial No": line.data.metadata.get("serial", ""),
+            "By": "volucal virtual machine",
+            "Axis": spec.name,
+            "Location": "simulation",
+            "TITLE": f"{spec.quantity} {spec.name}",
+        }
+        write_rtl(target, line.data, angular=spec.quantity == "angular", user_text=user_text)
+        specs.append(replace(spec, file=str(target.resolve())))
+    plan = Plan(measurement.machine, tuple(specs), folder / plan_name, dict(uncertainty or {}))
+    write_plan(folder / plan_name, plan)
+    return folder / plan_name

@@ -1,0 +1,568 @@
+"""Effects beyond the 21 rigid-body errors: a catalogue the closed loop searches.
+
+Every effect is linear in its parameters over the measurement context (position, approach
+direction, time, temperature, line): ``design(readings, model)`` returns one column per parameter
+(the change of each reading per unit parameter) and identification fits them together with the
+21 errors. Machine effects also give their volumetric error (``error_um``) so that compensation
+can use them; set-up effects (Abbe offset, cosine misalignment) describe the measurement, not the
+machine, and have no volumetric error.
+
+Kinds (report.json): reversal, cyclic, thermal_drift, abbe_offset, cosine, cross_axis,
+higher_order, local. Units: µm for displacements, mm for positions, s for time, °C.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import AXIS_ERROR_IDS, ERROR_INFO, BSplineBasis, ErrorModel, gauge_null_space
+from .kinematics import error_value_jacobian, rotation_error
+from .machine import AXES, AXIS_INDEX, Machine
+from .readings import QUANTITY_CODE, Readings
+
+FloatArray = NDArray[np.float64]
+ANGULAR = QUANTITY_CODE["angular"]
+
+
+def _displacement(readings: Readings, direction: int) -> FloatArray:
+    """How much a unit volumetric error along ``direction`` moves each reading (0 for angular)."""
+    out = readings.projection[:, direction].copy()
+    out[readings.is_angular] = 0.0
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Effect:
+    """Base class: one effect with a linear design over the readings."""
+
+    kind: str = field(init=False, default="")
+    line_index: int | None = field(init=False, default=None)
+
+    @property
+    def axis(self) -> str | None:
+        return None
+
+    @property
+    def key(self) -> tuple[str, str | None, str]:
+        """Identity for "one entry per (kind, axis)" plus what tells variants apart."""
+        return (self.kind, self.axis, self.label)
+
+    @property
+    def label(self) -> str:
+        raise NotImplementedError
+
+    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
+        raise NotImplementedError
+
+    def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
+        """Report the fitted size with units (report.json ``parameters``)."""
+        raise NotImplementedError
+
+    def magnitude_um(self, values: FloatArray) -> float:
+        """Peak size of the effect on the volumetric error (µm), for reports."""
+        raise NotImplementedError
+
+    def error_um(
+        self, values: FloatArray, machine: Machine, positions_mm: FloatArray,
+        approach: FloatArray | None = None, time_s: FloatArray | None = None,
+    ) -> FloatArray:
+        """Volumetric error (µm) of a machine effect at states; zero for set-up effects."""
+        return np.zeros_like(np.atleast_2d(positions_mm), dtype=float)
+
+
+def _std(covariance: FloatArray, index: int = 0) -> float:
+    return float(np.sqrt(max(covariance[index, index], 0.0))) if covariance.size else float("nan")
+
+
+# --------------------------------------------------------------------------------------------
+# Machine effects
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class Reversal(Effect):
+    """Reversal (backlash) of an axis: ±B/2 along the axis by approach direction, so that the
+    ISO 230-2 reversal x̄↑ − x̄↓ equals B. ``order`` 1 lets B vary linearly over the stroke."""
+
+    axis_name: str = "X"
+    order: int = 0
+    stroke_mm: tuple[float, float] = (0.0, 1.0)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", "reversal")
+
+    @property
+    def axis(self) -> str:
+        return self.axis_name
+
+    @property
+    def label(self) -> str:
+        return f"reversal {self.axis_name}" + (" (position-dependent)" if self.order else "")
+
+    def _shape(self, q: FloatArray) -> FloatArray:
+        low, high = self.stroke_mm
+        s = (2 * q - low - high) / (high - low)
+        return np.stack([np.ones_like(q), s][: self.order + 1], axis=-1)
+
+    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
+        k = AXIS_INDEX[self.axis_name]
+        along = _displacement(readings, k) * readings.approach[:, k] * 0.5
+        return along[:, None] * self._shape(readings.position_mm[:, k])
+
+    def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
+        out: dict[str, object] = {"value_um": float(values[0]), "value_std_um": _std(covariance)}
+        if self.order:
+            out["slope_um_per_stroke"] = float(2 * values[1])
+        return out
+
+    def magnitude_um(self, values: FloatArray) -> float:
+        return float(abs(values[0]) + (abs(values[1]) if self.order else 0.0))
+
+    def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
+        q = np.atleast_2d(positions_mm)
+        e = np.zeros_like(q, dtype=float)
+        if approach is None:
+            return e
+        k = AXIS_INDEX[self.axis_name]
+        e[:, k] = 0.5 * np.asarray(approach)[:, k] * (self._shape(q[:, k]) @ values)
+        return e
+
+
+@dataclass(frozen=True, eq=False)
+class Cyclic(Effect):
+    """A cyclic error along an axis (screw lead and harmonics): Σ a·sin + b·cos of
+    2πh(q − ref)/period, the same in both directions."""
+
+    axis_name: str = "X"
+    period_mm: float = 16.0
+    harmonics: tuple[int, ...] = (1,)
+    reference_mm: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", "cyclic")
+
+    @property
+    def axis(self) -> str:
+        return self.axis_name
+
+    @property
+    def label(self) -> str:
+        return f"cyclic {self.axis_name} {self.period_mm:.4g} mm"
+
+    def _waves(self, q: FloatArray) -> FloatArray:
+        cols = []
+        for h in self.harmonics:
+            phase = 2 * np.pi * h * (q - self.reference_mm) / self.period_mm
+            cols += [np.sin(phase), np.cos(phase)]
+        return np.stack(cols, axis=-1)
+
+    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
+        k = AXIS_INDEX[self.axis_name]
+        return _displacement(readings, k)[:, None] * self._waves(readings.position_mm[:, k])
+
+    def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
+        out: dict[str, object] = {"period_mm": self.period_mm}
+        for i, h in enumerate(self.harmonics):
+            a, b = values[2 * i], values[2 * i + 1]
+            amp = float(np.hypot(a, b))
+            # std of the amplitude by first-order propagation
+            grad = np.array([a, b]) / amp if amp > 0 else np.array([1.0, 0.0])
+            block = covariance[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] if covariance.size else None
+            std = float(np.sqrt(grad @ block @ grad)) if block is not None else float("nan")
+            suffix = "" if h == 1 else f"_h{h}"
+            out[f"amplitude_um{suffix}"] = amp
+            out[f"amplitude_std_um{suffix}"] = std
+            out[f"phase_rad{suffix}"] = float(np.arctan2(b, a))
+        return out
+
+    def magnitude_um(self, values: FloatArray) -> float:
+        return float(sum(np.hypot(values[2 * i], values[2 * i + 1]) for i in range(len(self.harmonics))))
+
+    def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
+        q = np.atleast_2d(positions_mm)
+        e = np.zeros_like(q, dtype=float)
+        k = AXIS_INDEX[self.axis_name]
+        e[:, k] = self._waves(q[:, k]) @ values
+        return e
+
+
+@dataclass(frozen=True, eq=False)
+class ThermalDrift(Effect):
+    """Scale of an axis drifting with the machine's temperature: κ·(q − ref)·g(t).
+
+    With a logged material temperature that changes, g is its rise since the session's first
+    reading (°C) and κ is an expansion in ppm/°C; otherwise g = 1 − exp(−t/τ) (τ chosen by the
+    loop) and κ is the scale reached for t ≫ τ, in ppm. The identified 21 errors describe the
+    machine at the first reading (DESIGN.md, "Time").
+    """
+
+    axis_name: str = "X"
+    mode: str = "temperature"  # or "time"
+    time_constant_s: float = 3600.0
+    reference_mm: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", "thermal_drift")
+
+    @property
+    def axis(self) -> str:
+        return self.axis_name
+
+    @property
+    def label(self) -> str:
+        if self.mode == "temperature":
+            return f"thermal drift {self.axis_name} (material temperature)"
+        return f"thermal drift {self.axis_name} (τ = {self.time_constant_s / 3600:.3g} h)"
+
+    def _driver(self, readings: Readings) -> FloatArray:
+        if self.mode == "temperature":
+            temp = readings.material_temp_c
+            first = int(np.argmin(readings.time_s))
+            return np.nan_to_num(temp - temp[first])
+        return 1.0 - np.exp(-readings.time_s / self.time_constant_s)
+
+    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
+        k = AXIS_INDEX[self.axis_name]
+        span_m = (readings.position_mm[:, k] - self.reference_mm) * 1e-3
+        # µm per ppm: 1 ppm over 1 m is 1 µm
+        return (_displacement(readings, k) * span_m * self._driver(readings))[:, None]
+
+    def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
+        if self.mode == "temperature":
+            return {
+                "mode": "temperature",
+                "expansion_ppm_per_c": float(values[0]),
+                "expansion_std_ppm_per_c": _std(covariance),
+            }
+        return {
+            "mode": "time",
+            "scale_ppm": float(values[0]),
+            "scale_std_ppm": _std(covariance),
+            "time_constant_s": self.time_constant_s,
+        }
+
+    def magnitude_um(self, values: FloatArray) -> float:
+        return float(abs(values[0]) * 0.4)  # over a typical 400 mm at the end of the drift
+
+    def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
+        # The model describes the machine at the session's first reading: compensation uses
+        # the 21 errors there, and the drift is reported, not compensated.
+        return np.zeros_like(np.atleast_2d(positions_mm), dtype=float)
+
+
+@dataclass(frozen=True, eq=False)
+class CrossAxis(Effect):
+    """Error along ``direction`` that depends on two axes at once (sag): f(q_along)·(q_across −
+    ref)/stroke, with f a quadratic zero at the reference. A rigid body cannot produce it when
+    the lines that see the coupled rotation disagree."""
+
+    direction: str = "Z"
+    along: str = "X"
+    across: str = "Y"
+    machine: Machine | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", "cross_axis")
+
+    @property
+    def axis(self) -> str:
+        return self.direction
+
+    @property
+    def label(self) -> str:
+        return f"cross-axis E{self.direction} over {self.along}×{self.across}"
+
+    def _shape(self, q: FloatArray) -> FloatArray:
+        assert self.machine is not None
+        low, high = self.machine.stroke(self.along)
+        a_low, a_high = self.machine.stroke(self.across)
+        ref_a = self.machine.reference(self.along)
+        ref_b = self.machine.reference(self.across)
+        s = (q[:, AXIS_INDEX[self.along]] - ref_a) / (high - low)
+        t = (q[:, AXIS_INDEX[self.across]] - ref_b) / (a_high - a_low)
+        # s² − s is zero at both ends: the part a rigid roll (∝ s·t) cannot mimic; s·t is
+        # included so that a sag referred to the reference keeps its full shape.
+        return np.stack([(s * s - s) * t * 4.0, s * t], axis=-1)
+
+    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
+        k = AXIS_INDEX[self.direction]
+        return _displacement(readings, k)[:, None] * self._shape(readings.position_mm)
+
+    def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
+        return {
+            "depends_on": [self.along, self.across],
+            "mid_sag_um": float(-values[0]),
+            "mid_sag_std_um": _std(covariance),
+            "linear_um": float(values[1]),
+        }
+
+    def magnitude_um(self, values: FloatArray) -> float:
+        return float(abs(values[0]) + abs(values[1]))
+
+    def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
+        q = np.atleast_2d(positions_mm)
+        e = np.zeros_like(q, dtype=float)
+        e[:, AXIS_INDEX[self.direction]] = self._shape(q) @ values
+        return e
+
+
+@dataclass(frozen=True, eq=False)
+class LocalDefect(Effect):
+    """A local guideway defect: a Gaussian bump of the error in ``direction`` along ``axis``."""
+
+    axis_name: str = "X"
+    direction: str = "Z"
+    center_mm: float = 0.0
+    width_mm: float = 5.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", "local")
+
+    @property
+    def axis(self) -> str:
+        return self.axis_name
+
+    @property
+    def label(self) -> str:
+        return f"local defect {self.axis_name} in {self.direction} at {self.center_mm:.0f} mm"
+
+    def _bump(self, q: FloatArray) -> FloatArray:
+        s = (q - self.center_mm) / self.width_mm
+        return np.exp(-0.5 * s * s)
+
+    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
+        k = AXIS_INDEX[self.direction]
+        bump = self._bump(readings.position_mm[:, AXIS_INDEX[self.axis_name]])
+        return (_displacement(readings, k) * bump)[:, None]
+
+    def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
+        return {
+            "direction": self.direction,
+            "center_mm": self.center_mm,
+            "width_mm": self.width_mm,
+            "amplitude_um": float(values[0]),
+            "amplitude_std_um": _std(covariance),
+        }
+
+    def magnitude_um(self, values: FloatArray) -> float:
+        return float(abs(values[0]))
+
+    def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
+        q = np.atleast_2d(positions_mm)
+        e = np.zeros_like(q, dtype=float)
+        e[:, AXIS_INDEX[self.direction]] = values[0] * self._bump(q[:, AXIS_INDEX[self.axis_name]])
+        return e
+
+
+@dataclass(frozen=True, eq=False)
+class HigherOrder(Effect):
+    """A finer basis for one of the 18 error functions (a refinement, not a physical effect):
+    B-splines every ``spacing_mm`` in the gauge, added to the function."""
+
+    error_id: str = "EXX"
+    spacing_mm: float = 25.0
+    machine: Machine | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", "higher_order")
+
+    @property
+    def axis(self) -> str:
+        axis = ERROR_INFO[self.error_id].axis
+        assert axis is not None
+        return axis
+
+    @property
+    def label(self) -> str:
+        return f"higher order {self.error_id} ({self.spacing_mm:g} mm)"
+
+    def _basis(self) -> tuple[BSplineBasis, FloatArray]:
+        assert self.machine is not None
+        low, high = self.machine.stroke(self.axis)
+        basis = BSplineBasis.uniform(low, high, self.spacing_mm)
+        null = gauge_null_space(
+            basis, self.machine.reference(self.axis), ERROR_INFO[self.error_id].is_straightness
+        )
+        return basis, null
+
+    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
+        basis, null = self._basis()
+        k = AXIS_INDEX[self.axis]
+        shape = basis.design(readings.position_mm[:, k]) @ null
+        column = AXIS_ERROR_IDS.index(self.error_id)
+        return value_sensitivity(readings, model)[:, column, None] * shape
+
+    def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
+        basis, null = self._basis()
+        low, high = basis.low, basis.high
+        q = np.linspace(low, high, 201)
+        added = basis.design(q) @ null @ values
+        unit = ERROR_INFO[self.error_id].unit
+        return {
+            "error": self.error_id,
+            "spacing_mm": self.spacing_mm,
+            f"added_rms_{unit}": float(np.sqrt(np.mean(added**2))),
+            f"added_max_{unit}": float(np.max(np.abs(added))),
+        }
+
+    def magnitude_um(self, values: FloatArray) -> float:
+        return float(self.parameters(values, np.zeros((0, 0))).get("added_max_um", 0.0))
+
+    def added_function(self, values: FloatArray) -> tuple[BSplineBasis, FloatArray]:
+        basis, null = self._basis()
+        return basis, null @ values
+
+    def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
+        # A refinement of an error function: compensation folds it into the model itself
+        # (see :func:`refined_model`).
+        return np.zeros_like(np.atleast_2d(positions_mm), dtype=float)
+
+
+_SENSITIVITY_CACHE: list[tuple[Readings, ErrorModel, FloatArray]] = []
+
+
+def value_sensitivity(readings: Readings, model: ErrorModel) -> FloatArray:
+    """d(reading)/d(value of each of the 18 error functions at the reading's position), (n, 18).
+
+    Evaluated once per distinct (line, target) and kept for the last (readings, model) pair: the
+    loop asks for it once per error function while diagnosing one fit.
+    """
+    for cached_readings, cached_model, value in _SENSITIVITY_CACHE:
+        if cached_readings is readings and cached_model is model:
+            return value
+    key = readings.line * 1_000_000 + readings.target
+    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    positions = readings.position_mm[first]
+    projection = readings.projection[first]
+    angular = readings.is_angular[first]
+    out = np.zeros((len(first), len(AXIS_ERROR_IDS)))
+    disp = ~angular
+    if disp.any():
+        per_axis, _ = error_value_jacobian(model, positions[disp], readings.reflector_mm[first][disp])
+        for a, axis in enumerate(AXES):
+            out[disp, 6 * a : 6 * a + 6] = np.einsum("nc,ncj->nj", projection[disp], per_axis[axis])
+    if angular.any():
+        for a in range(3):
+            out[angular, 6 * a + 3 : 6 * a + 6] = projection[angular]
+    result = out[inverse]
+    _SENSITIVITY_CACHE[:] = [(readings, model, result)]
+    return result
+
+
+# --------------------------------------------------------------------------------------------
+# Set-up effects
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class AbbeOffset(Effect):
+    """The optics of one line sit h (mm) away from where the plan says: the reading changes by
+    u·(θ(P) × h), θ the rotation of the tool at P. Linear in h given the identified angles."""
+
+    line: int = 0
+    line_name: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", "abbe_offset")
+        object.__setattr__(self, "line_index", self.line)
+
+    @property
+    def label(self) -> str:
+        return f"Abbe offset of line {self.line_name}"
+
+    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
+        out = np.zeros((len(readings), 3))
+        mask = (readings.line == self.line) & ~readings.is_angular
+        if not mask.any():
+            return out
+        theta = rotation_error(model, readings.position_mm[mask]) * 1e-6  # rad
+        for j in range(3):
+            unit = np.zeros(3)
+            unit[j] = 1.0
+            moved = np.cross(theta, unit) * 1e3  # µm per mm of offset
+            out[mask, j] = np.einsum("nc,nc->n", moved, readings.projection[mask])
+        return out
+
+    def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
+        return {
+            "line": self.line_name,
+            "offset_mm": [float(v) for v in values],
+            "offset_std_mm": [_std(covariance, j) for j in range(3)],
+        }
+
+    def magnitude_um(self, values: FloatArray) -> float:
+        return float(np.linalg.norm(values) * 1e-2)  # 10 µrad over the offset
+
+
+@dataclass(frozen=True, eq=False)
+class Cosine(Effect):
+    """Laser cosine misalignment of one line: a pure scale, −θ²/2, on that line."""
+
+    line: int = 0
+    line_name: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", "cosine")
+        object.__setattr__(self, "line_index", self.line)
+
+    @property
+    def label(self) -> str:
+        return f"cosine misalignment of line {self.line_name}"
+
+    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
+        mask = readings.line == self.line
+        column = np.where(mask, readings.target_mm, 0.0) * 1e-3  # µm per ppm
+        return column[:, None]
+
+    def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
+        scale_ppm = float(values[0])
+        angle = float(np.sqrt(2 * max(-scale_ppm, 0.0) * 1e-6) * 1e6)
+        return {
+            "line": self.line_name,
+            "scale_ppm": scale_ppm,
+            "scale_std_ppm": _std(covariance),
+            "angle_urad": angle,
+        }
+
+    def magnitude_um(self, values: FloatArray) -> float:
+        return float(abs(values[0]) * 0.4)
+
+
+def refined_model(model: ErrorModel, effects: tuple[Effect, ...], values: tuple[FloatArray, ...]
+                  ) -> ErrorModel:
+    """The model with every kept higher-order refinement folded into its error function
+    (sampled on a fine node table), for compensation and display."""
+    from .errors import ErrorFunction, NodeTableBasis
+
+    functions = dict(model.functions)
+    for effect, v in zip(effects, values, strict=True):
+        if not isinstance(effect, HigherOrder):
+            continue
+        eid = effect.error_id
+        basis, coefficients = effect.added_function(v)
+        nodes = np.linspace(basis.low, basis.high, 401)
+        total = functions[eid](nodes) + basis.evaluate(nodes, coefficients)
+        functions[eid] = ErrorFunction(eid, NodeTableBasis(tuple(nodes)), total)
+    return ErrorModel(model.machine, functions, dict(model.squareness_urad))
+
+
+MACHINE_KINDS = ("reversal", "cyclic", "thermal_drift", "cross_axis", "higher_order", "local")
+SETUP_KINDS = ("abbe_offset", "cosine")
+KINDS = MACHINE_KINDS + SETUP_KINDS
+
+__all__ = [
+    "AXES",
+    "AbbeOffset",
+    "Cosine",
+    "CrossAxis",
+    "Cyclic",
+    "Effect",
+    "HigherOrder",
+    "LocalDefect",
+    "Reversal",
+    "ThermalDrift",
+    "refined_model",
+]
