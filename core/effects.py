@@ -365,6 +365,7 @@ class HigherOrder(Effect):
     error_id: str = "EXX"
     spacing_mm: float = 25.0
     machine: Machine | None = None
+    coarse_spacing_mm: float = 50.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kind", "higher_order")
@@ -380,13 +381,21 @@ class HigherOrder(Effect):
         return f"higher order {self.error_id} ({self.spacing_mm:g} mm)"
 
     def _basis(self) -> tuple[BSplineBasis, FloatArray]:
+        """The finer B-splines in the gauge, restricted to shapes orthogonal (over the stroke) to
+        the current coarse basis, so the refinement's size is what it adds and nothing else."""
         assert self.machine is not None
         low, high = self.machine.stroke(self.axis)
+        reference = self.machine.reference(self.axis)
+        straightness = ERROR_INFO[self.error_id].is_straightness
         basis = BSplineBasis.uniform(low, high, self.spacing_mm)
-        null = gauge_null_space(
-            basis, self.machine.reference(self.axis), ERROR_INFO[self.error_id].is_straightness
-        )
-        return basis, null
+        fine = gauge_null_space(basis, reference, straightness)
+        coarse_basis = BSplineBasis.uniform(low, high, self.coarse_spacing_mm)
+        coarse = gauge_null_space(coarse_basis, reference, straightness)
+        q = np.linspace(low, high, 801)
+        cross = (coarse_basis.design(q) @ coarse).T @ (basis.design(q) @ fine)
+        _, s, vt = np.linalg.svd(cross, full_matrices=True)
+        rank = int(np.sum(s > 1e-9 * max(s.max(initial=0.0), 1e-300)))
+        return basis, fine @ vt[rank:].T
 
     def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
         basis, null = self._basis()

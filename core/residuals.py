@@ -401,7 +401,7 @@ def diagnose(
         basis = model.functions[eid].basis
         spacing = getattr(basis, "breakpoints_mm", None)
         current = float(np.diff(spacing).mean()) if spacing else 50.0
-        add(HigherOrder(eid, current / 2.0, machine))
+        add(HigherOrder(eid, current / 2.0, machine, current))
     for index, line in enumerate(readings.lines):
         if line.spec.quantity == "angular":
             continue

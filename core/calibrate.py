@@ -1,0 +1,297 @@
+"""The whole job: import, identify, close the loop, rank by sensitivity, compensate, report.
+
+``calibrate(CalibrationRequest(...))`` is what ``volucal calibrate`` and ``volucal demo`` run. It
+returns the report.json content (DESIGN.md contract) and writes the project, the report and the
+compensation files it is asked for.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .effects import Effect, refined_model
+from .identify import Identification, IdentifyOptions, UncertaintyBudget, parameters_report
+from .kinematics import VolumetricModel
+from .machine import Machine
+from .progress import CancelToken, ProgressCallback, check, report
+from .residuals import LoopOptions, LoopResult, close_loop
+
+FloatArray = NDArray[np.float64]
+
+
+class LoopSource:
+    """The extended model the loop produced, as a compensation error source: the 21 errors
+    (with kept higher-order refinements folded in) plus the machine effects (reversal, cyclic,
+    cross-axis, local defect). Set-up effects describe the measurement and are left out; a
+    thermal drift is reported, not compensated (the model is referred to the session start)."""
+
+    def __init__(self, identification: Identification, measured_range_mm: Mapping[str, tuple[float, float]]
+                 | None = None) -> None:
+        effects = tuple(e for e in identification.effects if isinstance(e, Effect))
+        self.model = refined_model(identification.model, effects, identification.effect_parameters)
+        self.machine: Machine = self.model.machine
+        self.effects = tuple(zip(effects, identification.effect_parameters, strict=True))
+        self._volumetric = VolumetricModel(self.model)
+        self.measured_range_mm = dict(measured_range_mm or {})
+
+    def error_um(
+        self,
+        positions_mm: ArrayLike,
+        approach: ArrayLike | None = None,
+        tool_offset_mm: ArrayLike | None = None,
+    ) -> FloatArray:
+        q = np.atleast_2d(np.asarray(positions_mm, dtype=float))
+        e = self._volumetric.error(q, tool_offset_mm)
+        a = None if approach is None else np.atleast_2d(np.asarray(approach, dtype=float))
+        for effect, values in self.effects:
+            e = e + effect.error_um(values, self.machine, q, a)
+        return e
+
+
+def measured_range(identification: Identification) -> dict[str, tuple[float, float]]:
+    """Per axis, the range of positions the measured lines covered."""
+    q = identification.readings.position_mm
+    return {a: (float(q[:, k].min()), float(q[:, k].max())) for k, a in enumerate("XYZ")}
+
+
+@dataclass(frozen=True)
+class CalibrationRequest:
+    plan_path: Path
+    project_path: Path | None = None
+    report_path: Path | None = None
+    export_dir: Path | None = None
+    export_formats: tuple[str, ...] = ("linuxcnc", "csv")
+    loop: LoopOptions = field(default_factory=LoopOptions)
+    sensitivity: bool = True
+    sensitivity_n: int = 1400
+    drop_outliers: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationResult:
+    report: dict[str, Any]
+    loop: LoopResult
+    source: LoopSource
+    exports: tuple[Any, ...]
+    import_notes: tuple[str, ...]
+
+
+def calibrate(
+    request: CalibrationRequest,
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken | None = None,
+) -> CalibrationResult:
+    """Run the whole loop on a plan and write what the request asks for."""
+    from volucal import __version__
+
+    from .io.plan import import_plan, load_plan
+
+    def sub(start: float, stop: float) -> ProgressCallback | None:
+        if progress is None:
+            return None
+        return lambda f, m: progress(start + (stop - start) * f, m)
+
+    report(progress, 0.0, "reading the plan")
+    plan = load_plan(request.plan_path)
+    imported = import_plan(plan, drop_outliers=request.drop_outliers, progress=sub(0.0, 0.1), cancel=cancel)
+    measurement = imported.measurement
+    budget = UncertaintyBudget.from_mapping(plan.uncertainty) if plan.uncertainty else UncertaintyBudget()
+    loop_options = replace(request.loop, identify=replace(request.loop.identify, budget=budget))
+    check(cancel)
+    loop = close_loop(measurement, loop_options, sub(0.1, 0.7), cancel)
+    final = loop.final
+    source = LoopSource(final, measured_range(final))
+    result: dict[str, Any] = {
+        "volucal_version": __version__,
+        "plan": str(Path(request.plan_path)),
+        "machine": {"name": measurement.machine.name, "chain": measurement.machine.chain,
+                    "tool_offset_mm": list(measurement.machine.tool_offset_mm)},
+        "lines": len(measurement.lines),
+        "readings": int(len(final.readings)),
+        "parameters": parameters_report(final),
+        "identifiability": final.identifiability.to_json() | {
+            "unidentifiable": [u.message for u in loop.base.identifiability.unidentifiable],
+        },
+        "sign_conventions": sorted({line.sign_convention for line in imported.lines}),
+        "outlier_flags": [str(f) for f in imported.flags],
+    }
+    result |= loop.to_report()
+    sensitivity_result = None
+    if request.sensitivity:
+        from .sensitivity import analyse_model
+
+        check(cancel)
+        report(progress, 0.72, "global sensitivity (EFAST)")
+        sensitivity_result = analyse_model(
+            source.model, final.covariance, n=request.sensitivity_n, seed=0,
+            progress=sub(0.72, 0.85), cancel=cancel,
+        )
+        result["sensitivity"] = sensitivity_result.to_report()
+    exports = []
+    files: list[str] = []
+    if request.export_dir is not None:
+        from .compensation.export import export_model
+
+        for fmt in request.export_formats:
+            check(cancel)
+            report(progress, 0.86, f"exporting {fmt}")
+            out = export_model(source, fmt, Path(request.export_dir) / fmt)
+            exports.append(out)
+            files += [str(p) for p in out.files]
+    from .compensation.export import compensation_report
+
+    report(progress, 0.93, "predicting the compensation")
+    verification = exports[0].verification if exports else None
+    result["compensation"] = compensation_report(source, tuple(files), verification)
+    if request.project_path is not None:
+        report(progress, 0.96, "saving the project")
+        save_project(request.project_path, imported, loop, result, sensitivity_result)
+    if request.report_path is not None:
+        write_json_atomic(request.report_path, result)
+    report(progress, 1.0, "done")
+    notes = tuple(n for line in imported.lines for n in line.notes)
+    return CalibrationResult(result, loop, source, tuple(exports), notes)
+
+
+def identification_tree(identification: Identification) -> dict[str, Any]:
+    from .project import error_model_to_tree
+
+    return {
+        "model": error_model_to_tree(identification.model),
+        "covariance": identification.covariance,
+        "sigma_scale": identification.sigma_scale,
+        "identifiability_json": json.dumps(identification.identifiability.to_json()),
+        "parameters_json": json.dumps(parameters_report(identification)),
+    }
+
+
+def save_project(path: Path, imported: Any, loop: LoopResult, result: Mapping[str, Any],
+                 sensitivity_result: Any = None) -> None:
+    """Write (or overwrite) the project with the measurement and every result of the run."""
+    from .project import Project
+
+    project = Project.create(imported.measurement.machine)
+    project.add_lines(
+        imported.plan, imported.measurement, imported.source_bytes, imported.raw,
+        provenance={line.name: line.provenance() for line in imported.lines},
+    )
+    project.put_result("identifications", "main", identification_tree(loop.base))
+    project.put_result("identifications", "loop", identification_tree(loop.final))
+    project.put_result("loops", "main", {"report_json": json.dumps(_loop_part(result))})
+    if "sensitivity" in result:
+        project.put_result("sensitivity", "main", {"report_json": json.dumps(result["sensitivity"])})
+    project.put_result("compensation", "main", {"report_json": json.dumps(result["compensation"])})
+    project.save(path)
+
+
+def _loop_part(result: Mapping[str, Any]) -> dict[str, Any]:
+    keys = ("loop", "effects", "residual_rms_um", "residual_rms_urad", "cv_rms_um", "unexplained", "warnings")
+    return {k: result[k] for k in keys if k in result}
+
+
+def write_json_atomic(path: Path, content: Mapping[str, Any]) -> None:
+    """Write JSON through a temporary file and a rename, so a reader never sees half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            json.dump(_jsonable(content), handle, indent=2, allow_nan=False)
+            handle.write("\n")
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _jsonable(value: Any) -> Any:
+    """Plain JSON: NaN and infinities become null, numpy scalars and arrays plain numbers."""
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, (np.floating, float)):
+        number = float(value)
+        return number if np.isfinite(number) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
+
+
+def summary_table(result: Mapping[str, Any]) -> str:
+    """The before/after table the CLI prints."""
+    lines = []
+    lines.append(f"lines {result['lines']}, readings {result['readings']}")
+    ident = result["identifiability"]
+    lines.append(f"identifiability: rank {ident['rank']} of {ident['unknowns']} unknowns")
+    for text in ident["unidentifiable"]:
+        lines.append(f"  not identified: {text}")
+    lines.append("")
+    lines.append("closed loop                                    RMS µm         CV RMS µm   kept")
+    lines.append("                                            before  after   before  after")
+    for step in result["loop"]:
+        effect = step["effect"]
+        label = effect.get("label", effect["kind"])[:42]
+        lines.append(
+            f"{step['step']:>2} {label:<42} {step['rms_um']['before']:6.3f} {step['rms_um']['after']:6.3f}"
+            f"   {step['cv_rms_um']['before']:6.3f} {step['cv_rms_um']['after']:6.3f}"
+            f"   {'yes' if step['kept'] else 'no'}"
+        )
+    rms = result["residual_rms_um"]
+    cv = result["cv_rms_um"]
+    lines.append(
+        f"   {'whole loop':<42} {rms['before_loop']:6.3f} {rms['after_loop']:6.3f}"
+        f"   {cv['before_loop']:6.3f} {cv['after_loop']:6.3f}   ({cv['method']})"
+    )
+    if result["effects"]:
+        lines.append("")
+        lines.append("effects kept:")
+        for effect in result["effects"]:
+            lines.append(f"  {effect['kind']} {effect['axis'] or ''}: {_short(effect['parameters'])}")
+    for item in result.get("unexplained", []):
+        lines.append(f"unexplained: {item['description']}")
+    for warning in result.get("warnings", []):
+        lines.append(f"warning: {warning}")
+    comp = result.get("compensation", {})
+    rates = comp.get("rate_percent", {})
+    if rates:
+        lines.append("")
+        lines.append("predicted compensation rate (RMS-based, %)     X      Y      Z")
+        for key, label in (("volumetric", "volumetric (grid / NC rewriting)"), ("axis_tables", "per-axis tables")):
+            r = rates.get(key, {})
+            if r:
+                lines.append(f"  {label:<43} {r['X']:5.1f}  {r['Y']:5.1f}  {r['Z']:5.1f}")
+    return "\n".join(lines)
+
+
+def _short(parameters: Mapping[str, Any]) -> str:
+    parts = []
+    for key, value in parameters.items():
+        if isinstance(value, float):
+            parts.append(f"{key} {value:.4g}")
+        elif isinstance(value, (int, str)):
+            parts.append(f"{key} {value}")
+    return ", ".join(parts[:5])
+
+
+def main_report_keys() -> Sequence[str]:
+    """The keys report.json always has (DESIGN.md)."""
+    return (
+        "volucal_version", "plan", "lines", "readings", "parameters", "identifiability", "loop",
+        "effects", "residual_rms_um", "cv_rms_um", "unexplained", "sensitivity", "compensation",
+    )

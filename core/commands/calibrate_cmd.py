@@ -1,0 +1,77 @@
+"""``volucal calibrate PLAN.toml --project OUT.h5 --report OUT.json``: the whole loop."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..calibrate import CalibrationRequest, _jsonable, calibrate, summary_table
+from ..residuals import LoopOptions
+from .progress_bar import ProgressBar
+
+FORMATS = ("linuxcnc", "siemens", "fanuc", "heidenhain", "isg", "csv", "json", "gcode")
+
+
+def add_run_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--export", metavar="DIR", type=Path,
+                        help="write compensation files into DIR/<format>/")
+    parser.add_argument("--format", dest="formats", action="append", choices=FORMATS,
+                        help="compensation format to export (repeat; default: linuxcnc and csv)")
+    parser.add_argument("--no-sensitivity", action="store_true", help="skip the EFAST ranking")
+    parser.add_argument("--margin", type=float, default=LoopOptions().margin,
+                        help="relative cross-validated improvement an effect must bring to be kept "
+                             "(default %(default)s)")
+    parser.add_argument("--drop-outliers", action="store_true",
+                        help="leave out readings flagged as outliers (they are only flagged otherwise)")
+    parser.add_argument("--json", action="store_true", help="print report.json to stdout")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def run(args: argparse.Namespace, plan: Path, project: Path | None, report: Path | None,
+        export: Path | None) -> int:
+    request = CalibrationRequest(
+        plan_path=plan,
+        project_path=project,
+        report_path=report,
+        export_dir=export,
+        export_formats=tuple(args.formats or ("linuxcnc", "csv")),
+        loop=LoopOptions(margin=args.margin),
+        sensitivity=not args.no_sensitivity,
+        drop_outliers=args.drop_outliers,
+    )
+    bar = None if args.quiet or args.json else ProgressBar()
+    result = calibrate(request, progress=bar)
+    if bar:
+        bar.close()
+    if args.json:
+        json.dump(_jsonable(result.report), sys.stdout, indent=2)
+        print()
+    else:
+        print(summary_table(result.report))
+        for path, what in ((project, "project"), (report, "report"), (export, "compensation files")):
+            if path is not None:
+                print(f"{what}: {path}")
+    return 0
+
+
+def handle(args: argparse.Namespace) -> int:
+    return run(args, args.plan, args.project, args.report, args.export)
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    parser = sub.add_parser(
+        "calibrate",
+        help="import, identify, close the loop, rank and compensate",
+        description=(
+            "Run the whole job on a plan: import the logs, identify the 21 geometric errors, "
+            "close the loop on the residual (effects the 21-error model lacks), rank the errors "
+            "by EFAST sensitivity and predict (and optionally export) the compensation."
+        ),
+    )
+    parser.add_argument("plan", type=Path, metavar="PLAN.toml")
+    parser.add_argument("--project", type=Path, metavar="OUT.h5", help="write the HDF5 project")
+    parser.add_argument("--report", type=Path, metavar="OUT.json", help="write report.json")
+    add_run_options(parser)
+    parser.set_defaults(handler=handle)
