@@ -798,13 +798,15 @@ def cross_validate(system: LinearSystem, readings: Readings, redundant: Sequence
     return _summarise("leave-one-line-out", residual, readings)
 
 
-BLOCK_TARGETS = 3
+#: Length of travel held out together in block cross-validation (a third of the default
+#: 50 mm basis spacing, so every basis function keeps data on both sides).
+BLOCK_MM = 15.0
 
 
 def _cross_validate_blocks(system: LinearSystem, readings: Readings, folds: int = 5) -> CrossValidation:
     """Held-out contiguous blocks of targets within every line (all lines stay in the fit).
 
-    Blocks are short (``BLOCK_TARGETS`` consecutive targets) and dealt to the folds in turn,
+    Blocks are short (the targets within ``BLOCK_MM`` of travel) and dealt to the folds in turn,
     shifted from line to line: a fold never empties a region of the stroke that only one line
     sees (which would leave local basis functions undetermined), while a structure spanning a
     block still has to be predicted from its neighbours and the other lines.
@@ -813,7 +815,8 @@ def _cross_validate_blocks(system: LinearSystem, readings: Readings, folds: int 
     fold_of = np.zeros(len(readings), dtype=int)
     for index in range(len(readings.lines)):
         mask = readings.line == index
-        fold_of[mask] = (readings.target[mask] // BLOCK_TARGETS + index) % folds
+        block = np.floor(readings.target_mm[mask] / BLOCK_MM).astype(int)
+        fold_of[mask] = (block + index) % folds
     rows_all = system.design_rows()
     w_all = system.weights
     for k in range(folds):

@@ -11,17 +11,14 @@ class ProgressBar:
     def __init__(self, width: int = 30) -> None:
         self.width = width
         self.tty = sys.stderr.isatty()
-        self.last = ""
 
     def __call__(self, fraction: float, message: str) -> None:
         filled = int(round(self.width * fraction))
         text = f"[{'#' * filled}{'.' * (self.width - filled)}] {100 * fraction:5.1f} % {message}"
+        # Only on a terminal: in a pipe or a log, progress lines would bury the results.
         if self.tty:
             sys.stderr.write("\r" + text[:100].ljust(100))
             sys.stderr.flush()
-        elif message != self.last:
-            sys.stderr.write(text + "\n")
-        self.last = message
 
     def close(self) -> None:
         if self.tty:
