@@ -28,8 +28,10 @@ def main() -> None:
             result = identify(measurement, options, readings=readings)
             times.append(time.perf_counter() - start)
         what = "with the redundant-line analysis" if redundancy else "identification + refinement"
-        print(f"{len(lines)} lines, {len(readings):,} readings, {result.identifiability.unknowns} "
-              f"unknowns, {result.iterations} Gauss-Newton iterations: {what} {min(times):.2f} s")
+        print(
+            f"{len(lines)} lines, {len(readings):,} readings, {result.identifiability.unknowns} "
+            f"unknowns, {result.iterations} Gauss-Newton iterations: {what} {min(times):.2f} s"
+        )
 
 
 if __name__ == "__main__":

@@ -8,7 +8,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-
 from volucal.core.kinematics import VolumetricModel, naive_error
 from volucal.core.simulate import random_truth
 
@@ -32,9 +31,14 @@ def main() -> None:
     scattered = best_of(lambda: vm.error(points))
     naive_n = 2000
     naive = best_of(lambda: naive_error(model, points[:naive_n]), repeats=1)
-    print(f"scattered points: {n / scattered / 1e6:.1f} M points/s ({n:,} points in {scattered:.2f} s)")
-    print(f"naive per-point 4x4 loop: {naive_n / naive / 1e3:.1f} k points/s "
-          f"-> {naive / naive_n * n / scattered:,.0f}x slower")
+    print(
+        f"scattered points: {n / scattered / 1e6:.1f} M points/s "
+        f"({n:,} points in {scattered:.2f} s)"
+    )
+    print(
+        f"naive per-point 4x4 loop: {naive_n / naive / 1e3:.1f} k points/s "
+        f"-> {naive / naive_n * n / scattered:,.0f}x slower"
+    )
     xs, ys, zs = np.arange(0, 401.0), np.arange(0, 401.0), np.arange(0, 351.0)
 
     def grid() -> None:
@@ -44,8 +48,10 @@ def main() -> None:
 
     grid_time = best_of(grid, repeats=2)
     count = xs.size * ys.size * zs.size
-    print(f"1 mm grid: {count / 1e6:.1f} M points in {grid_time:.2f} s "
-          f"({count / grid_time / 1e6:.0f} M points/s)")
+    print(
+        f"1 mm grid: {count / 1e6:.1f} M points in {grid_time:.2f} s "
+        f"({count / grid_time / 1e6:.0f} M points/s)"
+    )
 
 
 if __name__ == "__main__":

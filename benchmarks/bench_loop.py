@@ -21,8 +21,10 @@ def main() -> None:
         result = close_loop(measurement)
         times.append(time.perf_counter() - start)
     kept = ", ".join(e.label for e in result.kept)
-    print(f"demo loop: {min(times):.2f} s ({len(result.steps)} steps; kept: {kept}; "
-          f"CV RMS {result.cv_before.rms_um:.3f} -> {result.cv_after.rms_um:.3f} µm)")
+    print(
+        f"demo loop: {min(times):.2f} s ({len(result.steps)} steps; kept: {kept}; "
+        f"CV RMS {result.cv_before.rms_um:.3f} -> {result.cv_after.rms_um:.3f} µm)"
+    )
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .effects import Effect, refined_model
-from .identify import Identification, IdentifyOptions, UncertaintyBudget, parameters_report
+from .identify import Identification, UncertaintyBudget, parameters_report
 from .kinematics import VolumetricModel
 from .machine import Machine
 from .progress import CancelToken, ProgressCallback, check, report
@@ -34,8 +34,11 @@ class LoopSource:
     cross-axis, local defect). Set-up effects describe the measurement and are left out; a
     thermal drift is reported, not compensated (the model is referred to the session start)."""
 
-    def __init__(self, identification: Identification, measured_range_mm: Mapping[str, tuple[float, float]]
-                 | None = None) -> None:
+    def __init__(
+        self,
+        identification: Identification,
+        measured_range_mm: Mapping[str, tuple[float, float]] | None = None,
+    ) -> None:
         effects = tuple(e for e in identification.effects if isinstance(e, Effect))
         self.model = refined_model(identification.model, effects, identification.effect_parameters)
         self.machine: Machine = self.model.machine
@@ -102,9 +105,15 @@ def calibrate(
 
     report(progress, 0.0, "reading the plan")
     plan = load_plan(request.plan_path)
-    imported = import_plan(plan, drop_outliers=request.drop_outliers, progress=sub(0.0, 0.1), cancel=cancel)
+    imported = import_plan(
+        plan, drop_outliers=request.drop_outliers, progress=sub(0.0, 0.1), cancel=cancel
+    )
     measurement = imported.measurement
-    budget = UncertaintyBudget.from_mapping(plan.uncertainty) if plan.uncertainty else UncertaintyBudget()
+    budget = (
+        UncertaintyBudget.from_mapping(plan.uncertainty)
+        if plan.uncertainty
+        else UncertaintyBudget()
+    )
     loop_options = replace(request.loop, identify=replace(request.loop.identify, budget=budget))
     check(cancel)
     loop = close_loop(measurement, loop_options, sub(0.1, 0.7), cancel)
@@ -113,12 +122,16 @@ def calibrate(
     result: dict[str, Any] = {
         "volucal_version": __version__,
         "plan": str(Path(request.plan_path)),
-        "machine": {"name": measurement.machine.name, "chain": measurement.machine.chain,
-                    "tool_offset_mm": list(measurement.machine.tool_offset_mm)},
+        "machine": {
+            "name": measurement.machine.name,
+            "chain": measurement.machine.chain,
+            "tool_offset_mm": list(measurement.machine.tool_offset_mm),
+        },
         "lines": len(measurement.lines),
         "readings": int(len(final.readings)),
         "parameters": parameters_report(final),
-        "identifiability": final.identifiability.to_json() | {
+        "identifiability": final.identifiability.to_json()
+        | {
             "unidentifiable": [u.message for u in loop.base.identifiability.unidentifiable],
         },
         "sign_conventions": sorted({line.sign_convention for line in imported.lines}),
@@ -132,8 +145,13 @@ def calibrate(
         check(cancel)
         report(progress, 0.72, "global sensitivity (EFAST)")
         sensitivity_result = analyse_model(
-            source.model, final.covariance, n=request.sensitivity_n, seed=0,
-            progress=sub(0.72, 0.85), cancel=cancel,
+            source.model,
+            final.covariance,
+            n=request.sensitivity_n,
+            seed=0,
+            map_step_mm=100.0,
+            progress=sub(0.72, 0.85),
+            cancel=cancel,
         )
         result["sensitivity"] = sensitivity_result.to_report()
     exports = []
@@ -174,27 +192,45 @@ def identification_tree(identification: Identification) -> dict[str, Any]:
     }
 
 
-def save_project(path: Path, imported: Any, loop: LoopResult, result: Mapping[str, Any],
-                 sensitivity_result: Any = None) -> None:
+def save_project(
+    path: Path,
+    imported: Any,
+    loop: LoopResult,
+    result: Mapping[str, Any],
+    sensitivity_result: Any = None,
+) -> None:
     """Write (or overwrite) the project with the measurement and every result of the run."""
     from .project import Project
 
     project = Project.create(imported.measurement.machine)
     project.add_lines(
-        imported.plan, imported.measurement, imported.source_bytes, imported.raw,
+        imported.plan,
+        imported.measurement,
+        imported.source_bytes,
+        imported.raw,
         provenance={line.name: line.provenance() for line in imported.lines},
     )
     project.put_result("identifications", "main", identification_tree(loop.base))
     project.put_result("identifications", "loop", identification_tree(loop.final))
     project.put_result("loops", "main", {"report_json": json.dumps(_loop_part(result))})
     if "sensitivity" in result:
-        project.put_result("sensitivity", "main", {"report_json": json.dumps(result["sensitivity"])})
+        project.put_result(
+            "sensitivity", "main", {"report_json": json.dumps(result["sensitivity"])}
+        )
     project.put_result("compensation", "main", {"report_json": json.dumps(result["compensation"])})
     project.save(path)
 
 
 def _loop_part(result: Mapping[str, Any]) -> dict[str, Any]:
-    keys = ("loop", "effects", "residual_rms_um", "residual_rms_urad", "cv_rms_um", "unexplained", "warnings")
+    keys = (
+        "loop",
+        "effects",
+        "residual_rms_um",
+        "residual_rms_urad",
+        "cv_rms_um",
+        "unexplained",
+        "warnings",
+    )
     return {k: result[k] for k in keys if k in result}
 
 
@@ -248,7 +284,8 @@ def summary_table(result: Mapping[str, Any]) -> str:
         effect = step["effect"]
         label = effect.get("label", effect["kind"])[:42]
         lines.append(
-            f"{step['step']:>2} {label:<42} {step['rms_um']['before']:6.3f} {step['rms_um']['after']:6.3f}"
+            f"{step['step']:>2} {label:<42} "
+            f"{step['rms_um']['before']:6.3f} {step['rms_um']['after']:6.3f}"
             f"   {step['cv_rms_um']['before']:6.3f} {step['cv_rms_um']['after']:6.3f}"
             f"   {'yes' if step['kept'] else 'no'}"
         )
@@ -262,20 +299,23 @@ def summary_table(result: Mapping[str, Any]) -> str:
         lines.append("")
         lines.append("effects kept:")
         for effect in result["effects"]:
-            lines.append(f"  {effect['kind']} {effect['axis'] or ''}: {_short(effect['parameters'])}")
+            lines.append(
+                f"  {effect['kind']} {effect['axis'] or ''}: {_short(effect['parameters'])}"
+            )
     for item in result.get("unexplained", []):
         lines.append(f"unexplained: {item['description']}")
     for warning in result.get("warnings", []):
         lines.append(f"warning: {warning}")
-    comp = result.get("compensation", {})
-    rates = comp.get("rate_percent", {})
-    if rates:
+    methods = result.get("compensation", {}).get("methods", {})
+    if methods:
         lines.append("")
-        lines.append("predicted compensation rate (RMS-based, %)     X      Y      Z")
-        for key, label in (("volumetric", "volumetric (grid / NC rewriting)"), ("axis_tables", "per-axis tables")):
-            r = rates.get(key, {})
+        lines.append(
+            "predicted compensation rate on the model (RMS-based, %)         X      Y      Z"
+        )
+        for name, method in methods.items():
+            r = method.get("rms_percent", {})
             if r:
-                lines.append(f"  {label:<43} {r['X']:5.1f}  {r['Y']:5.1f}  {r['Z']:5.1f}")
+                lines.append(f"  {name:<60} {r['X']:5.1f}  {r['Y']:5.1f}  {r['Z']:5.1f}")
     return "\n".join(lines)
 
 
@@ -292,6 +332,17 @@ def _short(parameters: Mapping[str, Any]) -> str:
 def main_report_keys() -> Sequence[str]:
     """The keys report.json always has (DESIGN.md)."""
     return (
-        "volucal_version", "plan", "lines", "readings", "parameters", "identifiability", "loop",
-        "effects", "residual_rms_um", "cv_rms_um", "unexplained", "sensitivity", "compensation",
+        "volucal_version",
+        "plan",
+        "lines",
+        "readings",
+        "parameters",
+        "identifiability",
+        "loop",
+        "effects",
+        "residual_rms_um",
+        "cv_rms_um",
+        "unexplained",
+        "sensitivity",
+        "compensation",
     )

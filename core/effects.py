@@ -66,8 +66,12 @@ class Effect:
         raise NotImplementedError
 
     def error_um(
-        self, values: FloatArray, machine: Machine, positions_mm: FloatArray,
-        approach: FloatArray | None = None, time_s: FloatArray | None = None,
+        self,
+        values: FloatArray,
+        machine: Machine,
+        positions_mm: FloatArray,
+        approach: FloatArray | None = None,
+        time_s: FloatArray | None = None,
     ) -> FloatArray:
         """Volumetric error (µm) of a machine effect at states; zero for set-up effects."""
         return np.zeros_like(np.atleast_2d(positions_mm), dtype=float)
@@ -179,7 +183,9 @@ class Cyclic(Effect):
         return out
 
     def magnitude_um(self, values: FloatArray) -> float:
-        return float(sum(np.hypot(values[2 * i], values[2 * i + 1]) for i in range(len(self.harmonics))))
+        return float(
+            sum(np.hypot(values[2 * i], values[2 * i + 1]) for i in range(len(self.harmonics)))
+        )
 
     def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
         q = np.atleast_2d(positions_mm)
@@ -450,7 +456,9 @@ def value_sensitivity(readings: Readings, model: ErrorModel) -> FloatArray:
     out = np.zeros((len(first), len(AXIS_ERROR_IDS)))
     disp = ~angular
     if disp.any():
-        per_axis, _ = error_value_jacobian(model, positions[disp], readings.reflector_mm[first][disp])
+        per_axis, _ = error_value_jacobian(
+            model, positions[disp], readings.reflector_mm[first][disp]
+        )
         for a, axis in enumerate(AXES):
             out[disp, 6 * a : 6 * a + 6] = np.einsum("nc,ncj->nj", projection[disp], per_axis[axis])
     if angular.any():
@@ -540,8 +548,9 @@ class Cosine(Effect):
         return float(abs(values[0]) * 0.4)
 
 
-def refined_model(model: ErrorModel, effects: tuple[Effect, ...], values: tuple[FloatArray, ...]
-                  ) -> ErrorModel:
+def refined_model(
+    model: ErrorModel, effects: tuple[Effect, ...], values: tuple[FloatArray, ...]
+) -> ErrorModel:
     """The model with every kept higher-order refinement folded into its error function
     (sampled on a fine node table), for compensation and display."""
     from .errors import ErrorFunction, NodeTableBasis

@@ -246,7 +246,11 @@ class BSplineBasis(Basis):
         return np.asarray(spline(self._clamp(position_mm)))
 
     def describe(self) -> dict[str, object]:
-        return {"kind": self.kind, "degree": self.degree, "breakpoints_mm": list(self.breakpoints_mm)}
+        return {
+            "kind": self.kind,
+            "degree": self.degree,
+            "breakpoints_mm": list(self.breakpoints_mm),
+        }
 
     @classmethod
     def uniform(cls, low: float, high: float, spacing_mm: float = 50.0) -> BSplineBasis:

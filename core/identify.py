@@ -30,8 +30,8 @@ from scipy.linalg import cho_factor, cho_solve
 
 from .errors import (
     AXIS_ERROR_IDS,
-    ERROR_INFO,
     ERROR_IDS,
+    ERROR_INFO,
     SQUARENESS_IDS,
     Basis,
     BSplineBasis,
@@ -106,7 +106,7 @@ class UncertaintyBudget:
         return float(np.sqrt(np.sum(np.square(parts))))
 
     def positioning_std_um(self, distance_mm: FloatArray, angle_urad: float = 0.0) -> FloatArray:
-        """Standard uncertainty (µm) of a positioning error at ``distance_mm`` from the reference."""
+        """Standard uncertainty (µm) of a positioning error ``distance_mm`` from the reference."""
         scale = self.scale_ppm() * 1e-6 * np.abs(distance_mm) * 1e3
         dead = 0.93e-6 * self.dead_path_mm * self.air_temp_change_c * 1e3 / np.sqrt(3)
         abbe = self.abbe_mm * angle_urad * 1e-3 / np.sqrt(3)
@@ -185,8 +185,9 @@ class Identification:
     budget: UncertaintyBudget
     system: LinearSystem
 
-    def band(self, eid: str, position_mm: FloatArray | None = None, count: int = 101
-             ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def band(
+        self, eid: str, position_mm: FloatArray | None = None, count: int = 101
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(positions mm, value, standard uncertainty) of an error over its stroke.
 
         The standard uncertainty combines the statistical covariance with the budget (for the
@@ -388,7 +389,9 @@ class Gauge:
             f = model.functions[eid]
             axis = ERROR_INFO[eid].axis
             assert axis is not None
-            null = gauge_null_space(f.basis, model.machine.reference(axis), ERROR_INFO[eid].is_straightness)
+            null = gauge_null_space(
+                f.basis, model.machine.reference(axis), ERROR_INFO[eid].is_straightness
+            )
             columns.append(null)
             blocks[eid] = slice(start, start + null.shape[1])
             start += null.shape[1]
@@ -469,29 +472,35 @@ def build_system(
     ``effect_model``, by default the linearisation point itself)."""
     n_lines = len(readings.lines)
     geo = _geometric_rows(model, targets) @ gauge.matrix  # (T, G)
-    blocks: list[ColumnBlock] = [
-        ColumnBlock("error", eid, gauge.blocks[eid]) for eid in ERROR_IDS
-    ]
+    blocks: list[ColumnBlock] = [ColumnBlock("error", eid, gauge.blocks[eid]) for eid in ERROR_IDS]
     start = gauge.size
     offset_cols = np.zeros((len(targets.line), n_lines))
     offset_cols[np.arange(len(targets.line)), targets.line] = 1.0
     for index, line in enumerate(readings.lines):
-        blocks.append(ColumnBlock("offset", line.name, slice(start + index, start + index + 1), index))
+        blocks.append(
+            ColumnBlock("offset", line.name, slice(start + index, start + index + 1), index)
+        )
     start += n_lines
-    straight_lines = [i for i, line in enumerate(readings.lines) if line.spec.quantity == "straightness"]
+    straight_lines = [
+        i for i, line in enumerate(readings.lines) if line.spec.quantity == "straightness"
+    ]
     slope_cols = np.zeros((len(targets.line), len(straight_lines)))
     for k, index in enumerate(straight_lines):
         mask = targets.line == index
         # slope per metre of travel keeps the columns on the scale of the others
         slope_cols[mask, k] = targets.target_mm[mask] / 1000.0
-        blocks.append(ColumnBlock("slope", readings.lines[index].name, slice(start + k, start + k + 1), index))
+        blocks.append(
+            ColumnBlock("slope", readings.lines[index].name, slice(start + k, start + k + 1), index)
+        )
     start += len(straight_lines)
     target_design = np.hstack([geo, offset_cols, slope_cols])
     effect_parts = []
     for effect in effects:
         d = effect.design(readings, effect_model or model)
         effect_parts.append(d)
-        blocks.append(ColumnBlock("effect", effect.label, slice(start, start + d.shape[1]), effect.line_index))
+        blocks.append(
+            ColumnBlock("effect", effect.label, slice(start, start + d.shape[1]), effect.line_index)
+        )
         start += d.shape[1]
     effect_design = np.hstack(effect_parts) if effect_parts else np.zeros((len(readings), 0))
     weights = 1.0 / readings.sigma**2
@@ -529,7 +538,16 @@ def build_system(
         normal += m
         rhs += b
     return LinearSystem(
-        blocks, normal, rhs, line_normal, line_rhs, target_design, idx, effect_design, pseudo_y, weights
+        blocks,
+        normal,
+        rhs,
+        line_normal,
+        line_rhs,
+        target_design,
+        idx,
+        effect_design,
+        pseudo_y,
+        weights,
     )
 
 
@@ -557,8 +575,9 @@ def _describe(eid: str) -> str:
     return f"{_KIND_WORDS[info.kind]} of {info.axis} ({eid})"
 
 
-def identifiability(system: LinearSystem, gauge: Gauge, lines: Sequence[str],
-                    redundancy: bool = True) -> Identifiability:
+def identifiability(
+    system: LinearSystem, gauge: Gauge, lines: Sequence[str], redundancy: bool = True
+) -> Identifiability:
     """Rank, what the plan cannot see (named), and which lines are redundant."""
     _, scale, values, vectors = _scaled_pinv(system.normal)
     limit = RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
@@ -662,7 +681,9 @@ def identify(
     noise = float(np.median(readings.sigma))
     for iterations in range(1, max_iterations + 1):
         check(cancel)
-        report(progress, 0.1 + 0.7 * (iterations - 1) / max_iterations, f"linear solve {iterations}")
+        report(
+            progress, 0.1 + 0.7 * (iterations - 1) / max_iterations, f"linear solve {iterations}"
+        )
         current = model.with_parameters(gauge.matrix @ theta)
         rows = _geometric_rows(current, targets) @ gauge.matrix
         base = predict_geometric(current, targets) - rows @ theta
@@ -766,8 +787,9 @@ class CrossValidation:
     residual: FloatArray  # cross-validated residual per reading
 
 
-def cross_validate(system: LinearSystem, readings: Readings, redundant: Sequence[str] | None = None
-                   ) -> CrossValidation:
+def cross_validate(
+    system: LinearSystem, readings: Readings, redundant: Sequence[str] | None = None
+) -> CrossValidation:
     """Leave-one-line-out cross-validated residuals from the normal equations.
 
     For each line: fit without it, predict it, then fit only that line's own columns (its zero
@@ -779,7 +801,7 @@ def cross_validate(system: LinearSystem, readings: Readings, redundant: Sequence
     if redundant is not None and set(names) - set(redundant):
         return _cross_validate_blocks(system, readings)
     residual = np.empty(len(readings))
-    for index, name in enumerate(names):
+    for index in range(len(names)):
         own = system.line_columns(index)
         keep = np.setdiff1d(np.arange(system.size), own)
         m = system.normal - system.line_normal[index]
@@ -803,7 +825,9 @@ def cross_validate(system: LinearSystem, readings: Readings, redundant: Sequence
 BLOCK_MM = 15.0
 
 
-def _cross_validate_blocks(system: LinearSystem, readings: Readings, folds: int = 5) -> CrossValidation:
+def _cross_validate_blocks(
+    system: LinearSystem, readings: Readings, folds: int = 5
+) -> CrossValidation:
     """Held-out contiguous blocks of targets within every line (all lines stay in the fit).
 
     Blocks are short (the targets within ``BLOCK_MM`` of travel) and dealt to the folds in turn,
@@ -852,7 +876,9 @@ def residual_rms(identification: Identification) -> tuple[float, float]:
     return um, urad
 
 
-def parameters_report(identification: Identification, count: int = 41) -> dict[str, dict[str, object]]:
+def parameters_report(
+    identification: Identification, count: int = 41
+) -> dict[str, dict[str, object]]:
     """The report.json ``parameters`` block: basis, coefficients and sampled values with std."""
     out: dict[str, dict[str, object]] = {}
     model = identification.model

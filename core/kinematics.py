@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._chain_kernel import chain_error
 from .errors import (
     AXIS_ERROR_IDS,
     SQUARENESS_IDS,
@@ -35,7 +36,6 @@ from .errors import (
     PolynomialBasis,
     axis_error_ids,
 )
-from ._chain_kernel import chain_error
 from .machine import AXES, AXIS_INDEX, Machine
 
 FloatArray = NDArray[np.float64]
@@ -90,7 +90,11 @@ def _rotation_derivatives(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatA
 
 def axis_directions(squareness_urad: dict[str, float] | ErrorModel) -> FloatArray:
     """Unit directions of the X, Y, Z axes (rows) including squareness."""
-    sq = squareness_urad.squareness_urad if isinstance(squareness_urad, ErrorModel) else squareness_urad
+    sq = (
+        squareness_urad.squareness_urad
+        if isinstance(squareness_urad, ErrorModel)
+        else squareness_urad
+    )
     c = sq["EC0Y"] * RAD_PER_URAD
     b = sq["EB0Z"] * RAD_PER_URAD
     a = sq["EA0Z"] * RAD_PER_URAD
@@ -258,9 +262,13 @@ class VolumetricModel:
         line and combined by broadcasting: the cost per grid point is a few multiply-adds.
         """
         grids = [np.asarray(v, dtype=float) for v in (x_mm, y_mm, z_mm)]
-        t = np.asarray(
-            self.model.machine.tool_offset_mm if tool_offset_mm is None else tool_offset_mm, float
-        ) / 1.0
+        t = (
+            np.asarray(
+                self.model.machine.tool_offset_mm if tool_offset_mm is None else tool_offset_mm,
+                float,
+            )
+            / 1.0
+        )
         a1, a2, a3 = self.order
         per_axis = {}
         for k in (a1, a2, a3):
@@ -302,7 +310,9 @@ def _compose(
     for axis_index in reversed(order):
         errors = values[AXES[axis_index]]
         r = rotation_matrices(
-            errors[..., 3] * RAD_PER_URAD, errors[..., 4] * RAD_PER_URAD, errors[..., 5] * RAD_PER_URAD
+            errors[..., 3] * RAD_PER_URAD,
+            errors[..., 4] * RAD_PER_URAD,
+            errors[..., 5] * RAD_PER_URAD,
         )
         p = np.einsum("...ij,...j->...i", r, p)
         p += errors[..., :3] / UM_PER_MM
@@ -367,7 +377,9 @@ def first_order_error(
     offset). For "WXYFZT" this is the paper's eq. 6 with the products of two errors dropped.
     """
     q = np.atleast_2d(np.asarray(positions_mm, dtype=float))
-    t = np.asarray(model.machine.tool_offset_mm if tool_offset_mm is None else tool_offset_mm, float)
+    t = np.asarray(
+        model.machine.tool_offset_mm if tool_offset_mm is None else tool_offset_mm, float
+    )
     lever = np.broadcast_to(t, q.shape).astype(float)
     e = np.zeros_like(q)
     order = [AXIS_INDEX[a] for a in model.machine.axis_order]
@@ -400,7 +412,9 @@ def error_value_jacobian(
     """
     q = np.atleast_2d(np.asarray(positions_mm, dtype=float))
     n = len(q)
-    t = np.asarray(model.machine.tool_offset_mm if tool_offset_mm is None else tool_offset_mm, float)
+    t = np.asarray(
+        model.machine.tool_offset_mm if tool_offset_mm is None else tool_offset_mm, float
+    )
     directions = axis_directions(model)
     order = [AXIS_INDEX[a] for a in model.machine.axis_order]
     rotations, translations, angles = {}, {}, {}
@@ -414,7 +428,11 @@ def error_value_jacobian(
     v = np.broadcast_to(t, q.shape).astype(float)
     for k in reversed(order):
         after[k] = v
-        v = q[:, k, None] * directions[k] + np.einsum("nij,nj->ni", rotations[k], v) + translations[k]
+        v = (
+            q[:, k, None] * directions[k]
+            + np.einsum("nij,nj->ni", rotations[k], v)
+            + translations[k]
+        )
     # prefix rotations M_k = R_1 ... R_{k-1}
     prefix: dict[int, FloatArray] = {}
     m = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
@@ -427,9 +445,9 @@ def error_value_jacobian(
         jac[:, :, :3] = prefix[k]  # µm per µm
         dr = _rotation_derivatives(*angles[k].T)  # (3, n, 3, 3)
         for j in range(3):
-            jac[:, :, 3 + j] = np.einsum(
-                "nij,njk,nk->ni", prefix[k], dr[j], after[k]
-            ) * (UM_PER_MM * RAD_PER_URAD)
+            jac[:, :, 3 + j] = np.einsum("nij,njk,nk->ni", prefix[k], dr[j], after[k]) * (
+                UM_PER_MM * RAD_PER_URAD
+            )
         per_axis[AXES[k]] = jac
     squareness: dict[str, FloatArray] = {}
     for sid, (axis_index, du) in _direction_derivatives(model).items():
@@ -468,7 +486,9 @@ def naive_error(
 ) -> FloatArray:
     """Reference implementation: one 4×4 homogeneous product per point (slow; for checks)."""
     q = np.atleast_2d(np.asarray(positions_mm, dtype=float))
-    t = np.asarray(model.machine.tool_offset_mm if tool_offset_mm is None else tool_offset_mm, float)
+    t = np.asarray(
+        model.machine.tool_offset_mm if tool_offset_mm is None else tool_offset_mm, float
+    )
     directions = axis_directions(model)
     out = np.empty_like(q)
     for n, point in enumerate(q):

@@ -96,12 +96,15 @@ class Machine:
                 raise MachineError(f"machine.stroke: axis {axis} is missing")
             pair = self.stroke_mm[axis]
             if not isinstance(pair, Sequence) or len(pair) != 2:
-                raise MachineError(f"machine.stroke.{axis}: expected [min, max] in mm, got {pair!r}")
+                raise MachineError(
+                    f"machine.stroke.{axis}: expected [min, max] in mm, got {pair!r}"
+                )
             low = _finite(pair[0], f"machine.stroke.{axis}[0]")
             high = _finite(pair[1], f"machine.stroke.{axis}[1]")
             if not high > low:
                 raise MachineError(
-                    f"machine.stroke.{axis}: max ({high:g} mm) must be greater than min ({low:g} mm)"
+                    f"machine.stroke.{axis}: max ({high:g} mm) must be greater than "
+                    f"min ({low:g} mm)"
                 )
             strokes[axis] = (low, high)
         extra = sorted(set(self.stroke_mm) - set(AXES))
@@ -117,7 +120,9 @@ class Machine:
                 raise MachineError(f"machine.screw_lead.{axis}: must be positive, got {value:g} mm")
             leads[axis] = value
         object.__setattr__(self, "screw_lead_mm", leads)
-        object.__setattr__(self, "tool_offset_mm", _vector3(self.tool_offset_mm, "machine.tool_offset"))
+        object.__setattr__(
+            self, "tool_offset_mm", _vector3(self.tool_offset_mm, "machine.tool_offset")
+        )
         if self.reference_mm is None:
             reference = tuple(strokes[a][0] for a in AXES)
         else:

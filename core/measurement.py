@@ -48,6 +48,8 @@ class LineSpec:
     deviation_unit: str = "um"
     sign: int = 1
     env_corrected: bool = True
+    #: How to read the file (format, column map, units, capture binning; docs/formats.md).
+    reader: Mapping[str, object] = field(default_factory=dict, hash=False)
 
     def __post_init__(self) -> None:
         where = f"line {self.name!r}"
@@ -64,7 +66,9 @@ class LineSpec:
         else:
             if self.sensitive is None:
                 what = "deviation direction" if self.quantity == "straightness" else "rotation axis"
-                raise PlanError(f"{where}: sensitive is required for a {self.quantity} line ({what})")
+                raise PlanError(
+                    f"{where}: sensitive is required for a {self.quantity} line ({what})"
+                )
             sensitive = _unit(self.sensitive, f"{where}: sensitive")
             if self.quantity == "straightness" and abs(np.dot(sensitive, self.direction)) > 1e-6:
                 raise PlanError(
@@ -212,7 +216,9 @@ class Measurement:
     @property
     def session_start(self) -> float:
         """POSIX time of the session's first reading (the time origin of a thermal drift)."""
-        return min(line.data.start_time + float(np.nanmin(line.data.times_s)) for line in self.lines)
+        return min(
+            line.data.start_time + float(np.nanmin(line.data.times_s)) for line in self.lines
+        )
 
     def line(self, name: str) -> Line:
         for line in self.lines:

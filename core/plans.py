@@ -108,15 +108,23 @@ class _Builder:
         end = list(start)
         end[AXIS_INDEX[axis]] = self.high(axis)
         self.add(
-            name, quantity, start, tuple(end),  # type: ignore[arg-type]
-            UNIT[sensitive] if sensitive else None, reflector,
+            name,
+            quantity,
+            start,
+            tuple(end),  # type: ignore[arg-type]
+            UNIT[sensitive] if sensitive else None,
+            reflector,
         )
 
-    def diagonal(self, name: str, start: Vector, end: Vector, reflector: Vector | None = None) -> None:
+    def diagonal(
+        self, name: str, start: Vector, end: Vector, reflector: Vector | None = None
+    ) -> None:
         self.add(name, "linear", start, end, None, reflector)
 
 
-def _face_diagonals(b: _Builder, both: bool = True, suffix: str = "", reflector: Vector | None = None) -> None:
+def _face_diagonals(
+    b: _Builder, both: bool = True, suffix: str = "", reflector: Vector | None = None
+) -> None:
     lo = {a: b.low(a) for a in AXES}
     hi = {a: b.high(a) for a in AXES}
     faces = [("xy", "X", "Y", "Z"), ("xz", "X", "Z", "Y"), ("yz", "Y", "Z", "X")]
@@ -185,7 +193,9 @@ def nine_line(machine: Machine, step_mm: float = 12.0, jitter_mm: float = 0.0) -
     return b.lines
 
 
-def twelve_line(machine: Machine, step_mm: float = 12.0, jitter_mm: float = 0.0) -> list[PlannedLine]:
+def twelve_line(
+    machine: Machine, step_mm: float = 12.0, jitter_mm: float = 0.0
+) -> list[PlannedLine]:
     """The paper's twelve-line method as reconstructed here (docs/plans.md): the nine parallel
     lines plus three face diagonals (one per coordinate plane, two-axis simultaneous moves)."""
     b = _Builder(machine, step_mm, jitter_mm, machine.tool_offset_mm)
@@ -194,14 +204,18 @@ def twelve_line(machine: Machine, step_mm: float = 12.0, jitter_mm: float = 0.0)
     return b.lines
 
 
-def body_diagonals(machine: Machine, step_mm: float = 12.0, jitter_mm: float = 0.0) -> list[PlannedLine]:
+def body_diagonals(
+    machine: Machine, step_mm: float = 12.0, jitter_mm: float = 0.0
+) -> list[PlannedLine]:
     """The four body diagonals of ISO 230-6."""
     b = _Builder(machine, step_mm, jitter_mm, machine.tool_offset_mm)
     _body_diagonals(b)
     return b.lines
 
 
-def displacement_full(machine: Machine, step_mm: float = 12.0, jitter_mm: float = 0.0) -> list[PlannedLine]:
+def displacement_full(
+    machine: Machine, step_mm: float = 12.0, jitter_mm: float = 0.0
+) -> list[PlannedLine]:
     """Displacement lines only that identify all 21 errors (25 lines): nine parallel lines, six
     face diagonals, three face diagonals repeated with the optics offset across their plane (roll),
     four body diagonals and three off-centre face diagonals (one per plane)."""
@@ -256,14 +270,21 @@ def full(machine: Machine, step_mm: float = 12.0, jitter_mm: float = 0.0) -> lis
         others = [a for a in AXES if a != axis]
         b.axis_line(f"{axis.lower()}_linear_far", axis, **{o: b.high(o) for o in others})
         b.axis_line(
-            f"{axis.lower()}_linear_mid", axis, **{others[0]: b.mid(others[0]), others[1]: b.low(others[1])}
+            f"{axis.lower()}_linear_mid",
+            axis,
+            **{others[0]: b.mid(others[0]), others[1]: b.low(others[1])},
         )
         b.axis_line(
-            f"{axis.lower()}_linear_side", axis, **{others[0]: b.low(others[0]), others[1]: b.high(others[1])}
+            f"{axis.lower()}_linear_side",
+            axis,
+            **{others[0]: b.low(others[0]), others[1]: b.high(others[1])},
         )
         for s in others:
             b.axis_line(
-                f"{axis.lower()}_straight_{s.lower()}_far", axis, "straightness", s,
+                f"{axis.lower()}_straight_{s.lower()}_far",
+                axis,
+                "straightness",
+                s,
                 **{o: b.high(o) for o in others},
             )
     _face_diagonals(b, both=True, suffix="_b")
@@ -282,11 +303,15 @@ LAYOUTS: dict[str, Callable[..., list[PlannedLine]]] = {
 }
 
 
-def layout(name: str, machine: Machine, step_mm: float = 12.0, jitter_mm: float = 0.0) -> list[PlannedLine]:
+def layout(
+    name: str, machine: Machine, step_mm: float = 12.0, jitter_mm: float = 0.0
+) -> list[PlannedLine]:
     try:
         return LAYOUTS[name](machine, step_mm, jitter_mm)
     except KeyError:
-        raise ValueError(f"unknown plan layout {name!r}; choose one of {', '.join(LAYOUTS)}") from None
+        raise ValueError(
+            f"unknown plan layout {name!r}; choose one of {', '.join(LAYOUTS)}"
+        ) from None
 
 
 def names(lines: Sequence[PlannedLine]) -> list[str]:

@@ -133,12 +133,18 @@ class LoopResult:
     def effects_report(self) -> list[dict[str, object]]:
         out = []
         for effect, values, cov in zip(
-            self.final.effects, self.final.effect_parameters, self.final.effect_covariances,
+            self.final.effects,
+            self.final.effect_parameters,
+            self.final.effect_covariances,
             strict=True,
         ):
             assert isinstance(effect, Effect)
             out.append(
-                {"kind": effect.kind, "axis": effect.axis, "parameters": effect.parameters(values, cov)}
+                {
+                    "kind": effect.kind,
+                    "axis": effect.axis,
+                    "parameters": effect.parameters(values, cov),
+                }
             )
         return out
 
@@ -195,7 +201,7 @@ class LoopResult:
 
 
 def line_group(readings: Readings, index: int) -> str:
-    """"X", "Y", "Z" for a line whose reading is along one machine axis, "diagonal", "angular"."""
+    """ "X", "Y", "Z" for a line whose reading is along one machine axis, "diagonal", "angular"."""
     spec = readings.lines[index].spec
     if spec.quantity == "angular":
         return "angular"
@@ -299,7 +305,10 @@ def _moving_axes(readings: Readings) -> dict[str, bool]:
         for line in readings.lines:
             if line.spec.quantity == "angular":
                 continue
-            if abs(line.spec.direction[k]) > 1e-6 and len(set(line.data.run_direction.tolist())) > 1:
+            if (
+                abs(line.spec.direction[k]) > 1e-6
+                and len(set(line.data.run_direction.tolist())) > 1
+            ):
                 moving = True
         out[axis] = moving
     return out
@@ -339,8 +348,15 @@ def diagnose(
         if detect <= 0.0:
             return
         findings.append(
-            Finding(effect, f, _corrected(p, trials), trials, effect.magnitude_um(beta), detect,
-                    _where(readings, columns, beta))
+            Finding(
+                effect,
+                f,
+                _corrected(p, trials),
+                trials,
+                effect.magnitude_um(beta),
+                detect,
+                _where(readings, columns, beta),
+            )
         )
 
     moving = _moving_axes(readings)
@@ -369,7 +385,9 @@ def diagnose(
                         "few leads or irregular target spacing"
                     )
                 add(effect)
-            _search_period(tester, readings, model, axis, ref, step[axis], high - low, findings, excluded)
+            _search_period(
+                tester, readings, model, axis, ref, step[axis], high - low, findings, excluded
+            )
         if ("thermal_drift", axis) not in excluded_kind_axis:
             temp = readings.material_temp_c
             if np.all(np.isfinite(temp)) and np.ptp(temp) > 0.05:
@@ -385,8 +403,15 @@ def diagnose(
                 if best is not None and best[3] > 0.0:
                     effect, f, p, detect, beta = best
                     findings.append(
-                        Finding(effect, f, _corrected(p, len(taus)), len(taus),
-                                effect.magnitude_um(beta), detect, "all lines along " + axis)
+                        Finding(
+                            effect,
+                            f,
+                            _corrected(p, len(taus)),
+                            len(taus),
+                            effect.magnitude_um(beta),
+                            detect,
+                            "all lines along " + axis,
+                        )
                     )
         _search_local(tester, readings, model, axis, findings, excluded)
     for direction in AXES:
@@ -410,7 +435,9 @@ def diagnose(
             add(Cosine(index, line.name))
     total = len(findings)
     # family-wise correction over everything tested in this step
-    findings = [replace(f, log10_false_alarm=_corrected(f.log10_false_alarm, total)) for f in findings]
+    findings = [
+        replace(f, log10_false_alarm=_corrected(f.log10_false_alarm, total)) for f in findings
+    ]
     findings.sort(key=lambda f: (f.log10_false_alarm, -f.f_statistic))
     return findings, warnings
 
@@ -434,8 +461,15 @@ def _typical_step(readings: Readings) -> dict[str, float]:
 
 
 def _search_period(
-    tester: _Tester, readings: Readings, model, axis: str, ref: float, step: float,  # type: ignore[no-untyped-def]
-    span: float, findings: list[Finding], excluded: set,  # type: ignore[type-arg]
+    tester: _Tester,
+    readings: Readings,
+    model,
+    axis: str,
+    ref: float,
+    step: float,  # type: ignore[no-untyped-def]
+    span: float,
+    findings: list[Finding],
+    excluded: set,  # type: ignore[type-arg]
 ) -> None:
     """Least-squares periodogram along an axis: periods from twice the step (or 2 mm) to a
     quarter of the stroke; the best one is a finding with its false-alarm level."""
@@ -465,14 +499,25 @@ def _search_period(
     f, p, detect, beta = tester.test(columns)
     if detect > 0.0:
         findings.append(
-            Finding(effect, f, _corrected(p, trials), trials, effect.magnitude_um(beta), detect,
-                    f"along {axis}, period {best[1]:.3g} mm")
+            Finding(
+                effect,
+                f,
+                _corrected(p, trials),
+                trials,
+                effect.magnitude_um(beta),
+                detect,
+                f"along {axis}, period {best[1]:.3g} mm",
+            )
         )
 
 
 def _search_local(
-    tester: _Tester, readings: Readings, model, axis: str,  # type: ignore[no-untyped-def]
-    findings: list[Finding], excluded: set,  # type: ignore[type-arg]
+    tester: _Tester,
+    readings: Readings,
+    model,
+    axis: str,  # type: ignore[no-untyped-def]
+    findings: list[Finding],
+    excluded: set,  # type: ignore[type-arg]
 ) -> None:
     """A scan of Gaussian bumps along an axis, in each direction, at several widths."""
     machine = model.machine
@@ -502,8 +547,15 @@ def _search_local(
         f, p, detect, beta = tester.test(effect.design(readings, model))
         if detect > 0.0:
             findings.append(
-                Finding(effect, f, _corrected(p, trials), trials, effect.magnitude_um(beta), detect,
-                        f"{axis} at {best[1]:.0f} mm, width {best[2]:.0f} mm, in {direction}")
+                Finding(
+                    effect,
+                    f,
+                    _corrected(p, trials),
+                    trials,
+                    effect.magnitude_um(beta),
+                    detect,
+                    f"{axis} at {best[1]:.0f} mm, width {best[2]:.0f} mm, in {direction}",
+                )
             )
 
 
@@ -593,12 +645,22 @@ def close_loop(
             check(cancel)
             effects = _with(kept, finding.effect)
             refit = identify(
-                measurement, refit_options, effects=effects, readings=readings,
-                cancel=cancel, initial=current.model,
+                measurement,
+                refit_options,
+                effects=effects,
+                readings=readings,
+                cancel=cancel,
+                initial=current.model,
             )
             cv_new = cross_validate(refit.system, readings, redundant)
-            trials.append((cv_new.rms_um if np.isfinite(cv_new.rms_um) else cv_new.rms_urad,
-                           finding, refit, cv_new))
+            trials.append(
+                (
+                    cv_new.rms_um if np.isfinite(cv_new.rms_um) else cv_new.rms_urad,
+                    finding,
+                    refit,
+                    cv_new,
+                )
+            )
         trials.sort(key=lambda t: t[0])
         score, finding, refit, cv_new = trials[0]
         before = cv.rms_um if np.isfinite(cv.rms_um) else cv.rms_urad
@@ -615,9 +677,17 @@ def close_loop(
             reason += f"; below the {100 * options.margin:.0f} % margin: rejected"
         steps.append(
             Step(
-                number, finding, keep, reason,
-                residual_rms(current)[0], residual_rms(refit)[0],
-                cv.rms_um, cv_new.rms_um, params, group_rms(current), group_rms(refit),
+                number,
+                finding,
+                keep,
+                reason,
+                residual_rms(current)[0],
+                residual_rms(refit)[0],
+                cv.rms_um,
+                cv_new.rms_um,
+                params,
+                group_rms(current),
+                group_rms(refit),
             )
         )
         for _, other, _, _ in trials[1:]:
@@ -637,8 +707,11 @@ def close_loop(
 
 def _with(kept: list[Effect], effect: Effect) -> list[Effect]:
     """Kept effects plus a new one; a position-dependent reversal replaces the constant one."""
-    out = [e for e in kept if not (isinstance(effect, Reversal) and isinstance(e, Reversal)
-                                   and e.axis == effect.axis)]
+    out = [
+        e
+        for e in kept
+        if not (isinstance(effect, Reversal) and isinstance(e, Reversal) and e.axis == effect.axis)
+    ]
     return out + [effect]
 
 

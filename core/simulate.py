@@ -123,7 +123,15 @@ class LocalDefect:
     amplitude_um: float
 
 
-SimEffect = Reversal | CyclicError | ThermalDrift | AbbeSetup | CosineMisalignment | CrossAxisSag | LocalDefect
+SimEffect = (
+    Reversal
+    | CyclicError
+    | ThermalDrift
+    | AbbeSetup
+    | CosineMisalignment
+    | CrossAxisSag
+    | LocalDefect
+)
 
 
 # --------------------------------------------------------------------------------------------
@@ -226,7 +234,9 @@ class VirtualMachine:
                 e[:, k] += 0.5 * effect.value_um * approach[:, k]
             elif isinstance(effect, CyclicError):
                 k = AXIS_INDEX[effect.axis]
-                phase = 2 * np.pi * (q[:, k] - self.machine.reference(effect.axis)) / effect.period_mm
+                phase = (
+                    2 * np.pi * (q[:, k] - self.machine.reference(effect.axis)) / effect.period_mm
+                )
                 e[:, k] += effect.amplitude_um * np.sin(phase + effect.phase_rad)
             elif isinstance(effect, ThermalDrift):
                 k = AXIS_INDEX[effect.axis]
@@ -245,7 +255,9 @@ class VirtualMachine:
                 e[:, AXIS_INDEX[effect.direction]] += effect.amplitude_um * np.exp(-0.5 * s * s)
         return e
 
-    def temperature_rise_c(self, time_s: FloatArray, effect: ThermalDrift | None = None) -> FloatArray:
+    def temperature_rise_c(
+        self, time_s: FloatArray, effect: ThermalDrift | None = None
+    ) -> FloatArray:
         """Temperature rise of the machine since the session's first reading (°C)."""
         drifts = [effect] if effect else [e for e in self.effects if isinstance(e, ThermalDrift)]
         if not drifts:
@@ -374,6 +386,11 @@ class VirtualMachine:
         displacement_um = (actual - nominal) * 1e3
         axis = spec.direction if spec.quantity == "linear" else spec.sensitive
         return displacement_um @ np.asarray(axis)
+
+
+#: Target spacing of the demo plan (mm) and the random shift of its interior targets.
+DEMO_STEP_MM = 6.0
+DEMO_JITTER_MM = 2.0
 
 
 def demo_machine(seed: int = 2026) -> VirtualMachine:

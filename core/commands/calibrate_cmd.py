@@ -5,9 +5,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
-from ..calibrate import CalibrationRequest, _jsonable, calibrate, summary_table
+from ..calibrate import (
+    CalibrationRequest,
+    CalibrationResult,
+    _jsonable,
+    calibrate,
+    summary_table,
+    write_json_atomic,
+)
 from ..residuals import LoopOptions
 from .progress_bar import ProgressBar
 
@@ -15,22 +23,43 @@ FORMATS = ("linuxcnc", "siemens", "fanuc", "heidenhain", "isg", "csv", "json", "
 
 
 def add_run_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--export", metavar="DIR", type=Path,
-                        help="write compensation files into DIR/<format>/")
-    parser.add_argument("--format", dest="formats", action="append", choices=FORMATS,
-                        help="compensation format to export (repeat; default: linuxcnc and csv)")
+    parser.add_argument(
+        "--export", metavar="DIR", type=Path, help="write compensation files into DIR/<format>/"
+    )
+    parser.add_argument(
+        "--format",
+        dest="formats",
+        action="append",
+        choices=FORMATS,
+        help="compensation format to export (repeat; default: linuxcnc and csv)",
+    )
     parser.add_argument("--no-sensitivity", action="store_true", help="skip the EFAST ranking")
-    parser.add_argument("--margin", type=float, default=LoopOptions().margin,
-                        help="relative cross-validated improvement an effect must bring to be kept "
-                             "(default %(default)s)")
-    parser.add_argument("--drop-outliers", action="store_true",
-                        help="leave out readings flagged as outliers (they are only flagged otherwise)")
+    parser.add_argument(
+        "--margin",
+        type=float,
+        default=LoopOptions().margin,
+        help="relative cross-validated improvement an effect must bring to be kept "
+        "(default %(default)s)",
+    )
+    parser.add_argument(
+        "--drop-outliers",
+        action="store_true",
+        help="leave out readings flagged as outliers (they are only flagged otherwise)",
+    )
     parser.add_argument("--json", action="store_true", help="print report.json to stdout")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
-def run(args: argparse.Namespace, plan: Path, project: Path | None, report: Path | None,
-        export: Path | None) -> int:
+def run(
+    args: argparse.Namespace,
+    plan: Path,
+    project: Path | None,
+    report: Path | None,
+    export: Path | None,
+    after: Callable[[CalibrationResult], str] | None = None,
+) -> int:
+    """Calibrate, then ``after`` (the demo's verification) may extend the report and returns
+    text to print below the summary."""
     request = CalibrationRequest(
         plan_path=plan,
         project_path=project,
@@ -43,14 +72,23 @@ def run(args: argparse.Namespace, plan: Path, project: Path | None, report: Path
     )
     bar = None if args.quiet or args.json else ProgressBar()
     result = calibrate(request, progress=bar)
+    extra = after(result) if after else ""
     if bar:
         bar.close()
+    if extra and report is not None:
+        write_json_atomic(report, result.report)
     if args.json:
         json.dump(_jsonable(result.report), sys.stdout, indent=2)
         print()
     else:
         print(summary_table(result.report))
-        for path, what in ((project, "project"), (report, "report"), (export, "compensation files")):
+        if extra:
+            print(extra)
+        for path, what in (
+            (project, "project"),
+            (report, "report"),
+            (export, "compensation files"),
+        ):
             if path is not None:
                 print(f"{what}: {path}")
     return 0

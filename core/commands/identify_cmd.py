@@ -37,15 +37,19 @@ def handle(args: argparse.Namespace) -> int:
         json.dump(_jsonable(content), sys.stdout, indent=2)
         print()
         return 0
-    print(f"{len(measurement.lines)} lines, {len(result.readings)} readings; "
-          f"rank {info.rank} of {info.unknowns} unknowns")
+    print(
+        f"{len(measurement.lines)} lines, {len(result.readings)} readings; "
+        f"rank {info.rank} of {info.unknowns} unknowns"
+    )
     print(f"{'error':<18} {'unit':<5} {'min':>9} {'max':>9} {'U95 max':>9}  identified")
     for eid in ERROR_IDS:
         _, value, std = result.band(eid)
         unit = "µm" if ERROR_INFO[eid].unit == "um" else "µrad"
         seen = "yes" if result.is_identified(eid) else "NO"
-        print(f"{error_label(eid):<18} {unit:<5} {np.min(value):9.3f} {np.max(value):9.3f} "
-              f"{2 * np.max(std):9.3f}  {seen}")
+        print(
+            f"{error_label(eid):<18} {unit:<5} {np.min(value):9.3f} {np.max(value):9.3f} "
+            f"{2 * np.max(std):9.3f}  {seen}"
+        )
     for item in info.unidentifiable:
         print(f"not identified: {item.message}")
     print(f"redundant lines: {len(info.redundant_lines)} of {len(measurement.lines)}")
@@ -65,8 +69,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         ),
     )
     parser.add_argument("project", type=Path, metavar="PROJECT.h5")
-    parser.add_argument("--spacing", type=float, default=50.0,
-                        help="breakpoint spacing of the cubic B-spline basis, mm (default %(default)s)")
-    parser.add_argument("--name", default="main", help="result name in the project (default %(default)s)")
+    parser.add_argument(
+        "--spacing",
+        type=float,
+        default=50.0,
+        help="breakpoint spacing of the cubic B-spline basis, mm (default %(default)s)",
+    )
+    parser.add_argument(
+        "--name", default="main", help="result name in the project (default %(default)s)"
+    )
     parser.add_argument("--json", action="store_true", help="machine-readable output")
     parser.set_defaults(handler=handle)

@@ -11,16 +11,14 @@ runs, 0.15 µm noise) and written as Renishaw-style .rtl/.rta logs plus plan.tom
 from pathlib import Path
 
 from volucal.core import plans
-from volucal.core.simulate import demo_machine, write_session
+from volucal.core.simulate import DEMO_JITTER_MM, DEMO_STEP_MM, demo_machine, write_session
 
 HERE = Path(__file__).resolve().parent
-STEP_MM = 6.0
-JITTER_MM = 2.0
 
 
 def main() -> None:
     machine = demo_machine()
-    lines = plans.full(machine.machine, STEP_MM, JITTER_MM)
+    lines = plans.full(machine.machine, DEMO_STEP_MM, DEMO_JITTER_MM)
     measurement = machine.measure(lines)
     for old in (HERE / "logs").glob("*.rt?"):
         old.unlink()

@@ -1,4 +1,6 @@
-"""Write the plan presets and their identifiability report: `python resources/plans/make_presets.py`.
+"""Write the plan presets and their identifiability report.
+
+Run: `python resources/plans/make_presets.py`.
 
 Each preset is a plan.toml for the paper's machine (400 × 400 × 350 mm, tool 200 mm) whose `file`
 entries are placeholders (logs/<line>.rtl) to be replaced by the user's logs. What each preset can
@@ -13,7 +15,16 @@ from dataclasses import replace
 from pathlib import Path
 
 from volucal.core import plans
-from volucal.core.effects import AbbeOffset, Cosine, CrossAxis, Cyclic, HigherOrder, LocalDefect, Reversal, ThermalDrift
+from volucal.core.effects import (
+    AbbeOffset,
+    Cosine,
+    CrossAxis,
+    Cyclic,
+    HigherOrder,
+    LocalDefect,
+    Reversal,
+    ThermalDrift,
+)
 from volucal.core.identify import identify
 from volucal.core.io.plan import write_plan
 from volucal.core.machine import PAPER_MACHINE
@@ -25,23 +36,35 @@ HERE = Path(__file__).resolve().parent
 DOCS = HERE.parents[1] / "docs" / "plans.md"
 
 DESCRIPTIONS = {
-    "nine-line": "Nine axis-parallel displacement lines: per axis a base line and two with a lever "
-    "arm across it (a later axis at the far end of its stroke, or the reflector displaced by 150 mm).",
-    "twelve-line": "The paper's twelve-line method as reconstructed here: the nine parallel lines plus "
-    "one face diagonal per coordinate plane (two-axis simultaneous moves), targets every 12 mm. The "
-    "paper does not give its layout; this is the reading of its text (single-axis and two-axis "
-    "simultaneous lines) that volucal uses.",
+    "nine-line": (
+        "Nine axis-parallel displacement lines: per axis a base line and two with a lever arm "
+        "across it (a later axis at the far end of its stroke, or the reflector displaced by "
+        "150 mm)."
+    ),
+    "twelve-line": (
+        "The paper's twelve-line method as reconstructed here: the nine parallel lines plus one "
+        "face diagonal per coordinate plane (two-axis simultaneous moves), targets every 12 mm. "
+        "The paper does not give its layout; this is the reading of its text (single-axis and "
+        "two-axis simultaneous lines) that volucal uses."
+    ),
     "body-diagonals": "The four body diagonals of ISO 230-6.",
-    "displacement-only": "25 displacement lines that identify all 21 errors without straightness or "
-    "angular optics: nine parallel lines, six face diagonals, three face diagonals with the optics "
-    "displaced across their plane (roll), four body diagonals, three off-centre face diagonals.",
-    "direct": "Direct optics per axis: linear, both straightnesses (one twice, with the optics "
-    "displaced, for roll), the two angles an interferometer sees, plus one face diagonal per plane "
-    "for squareness.",
-    "full": "A full, redundant plan (the demo's): the direct optics, extra parallel linear and "
-    "straightness lines across the workspace, all face diagonals, face diagonals with displaced "
-    "optics, and the body diagonals. Every line is redundant, so leave-one-line-out "
-    "cross-validation applies.",
+    "displacement-only": (
+        "25 displacement lines that identify all 21 errors without straightness or angular "
+        "optics: nine parallel lines, six face diagonals, three face diagonals with the optics "
+        "displaced across their plane (roll), four body diagonals, three off-centre face "
+        "diagonals."
+    ),
+    "direct": (
+        "Direct optics per axis: linear, both straightnesses (one twice, with the optics "
+        "displaced, for roll), the two angles an interferometer sees, plus one face diagonal per "
+        "plane for squareness."
+    ),
+    "full": (
+        "A full, redundant plan (the demo's): the direct optics, extra parallel linear and "
+        "straightness lines across the workspace, all face diagonals, face diagonals with "
+        "displaced optics, and the body diagonals. Every line is redundant, so leave-one-line-out "
+        "cross-validation applies."
+    ),
 }
 
 
@@ -53,8 +76,12 @@ def effect_columns(readings, model, machine):  # type: ignore[no-untyped-def]
         "reversal X": Reversal("X", 0, machine.stroke("X")),
         "cyclic X at the 16 mm lead": Cyclic("X", 16.0, (1,), 0.0),
         "thermal drift X": ThermalDrift("X", "time", 4 * 3600.0, 0.0),
-        f"Abbe offset ({readings.lines[line0].name})": AbbeOffset(line0, readings.lines[line0].name),
-        "cosine (a linear line)": Cosine(linear[0], readings.lines[linear[0]].name) if linear else None,
+        f"Abbe offset ({readings.lines[line0].name})": AbbeOffset(
+            line0, readings.lines[line0].name
+        ),
+        "cosine (a linear line)": Cosine(linear[0], readings.lines[linear[0]].name)
+        if linear
+        else None,
         "sag EZ over X×Y": CrossAxis("Z", "X", "Y", machine),
         "higher order EXX": HigherOrder("EXX", 25.0, machine, 50.0),
         "local defect X in Z": LocalDefect("X", "Z", 200.0, 8.0),
@@ -62,12 +89,16 @@ def effect_columns(readings, model, machine):  # type: ignore[no-untyped-def]
 
 
 def main() -> None:
-    rows = ["# Plan presets", "",
-            "Generated by `resources/plans/make_presets.py` from a simulated measurement of each "
-            "layout on the paper's machine (400 × 400 × 350 mm, WXYFZT, tool offset 200 mm, "
-            "targets every 12 mm with irregular spacing, B-splines every 50 mm). Load a preset "
-            "from `resources/plans/`, replace each `file` with your log and adjust `start`, "
-            "`direction` and `reflector` to your set-up.", ""]
+    rows = [
+        "# Plan presets",
+        "",
+        "Generated by `resources/plans/make_presets.py` from a simulated measurement of each "
+        "layout on the paper's machine (400 × 400 × 350 mm, WXYFZT, tool offset 200 mm, "
+        "targets every 12 mm with irregular spacing, B-splines every 50 mm). Load a preset "
+        "from `resources/plans/`, replace each `file` with your log and adjust `start`, "
+        "`direction` and `reflector` to your set-up.",
+        "",
+    ]
     truth = random_truth(PAPER_MACHINE, seed=1)
     vm = VirtualMachine(truth, seed=1, laser=LaserSetup(noise_um=0.1, noise_urad=0.1))
     for name, layout in plans.LAYOUTS.items():
@@ -76,16 +107,23 @@ def main() -> None:
         write_plan(HERE / f"{name}.toml", Plan(PAPER_MACHINE, specs, HERE / f"{name}.toml"))
         result = identify(vm.measure(lines))
         info = result.identifiability
-        rows += [f"## {name} ({len(lines)} lines)", "", DESCRIPTIONS[name], "",
-                 f"- rank {info.rank} of {info.unknowns} unknowns (error coefficients, squareness, "
-                 "one zero offset per line, one alignment slope per straightness line)"]
+        rows += [
+            f"## {name} ({len(lines)} lines)",
+            "",
+            DESCRIPTIONS[name],
+            "",
+            f"- rank {info.rank} of {info.unknowns} unknowns (error coefficients, squareness, "
+            "one zero offset per line, one alignment slope per straightness line)",
+        ]
         if info.unidentifiable:
             rows.append("- not identified:")
             rows += [f"  - {u.message}" for u in info.unidentifiable]
         else:
             rows.append("- all 21 errors are identified")
-        rows.append(f"- redundant lines (can be left out without losing rank): "
-                    f"{len(info.redundant_lines)} of {len(lines)}")
+        rows.append(
+            f"- redundant lines (can be left out without losing rank): "
+            f"{len(info.redundant_lines)} of {len(lines)}"
+        )
         tester = _Tester(result)
         can, cannot = [], []
         for label, effect in effect_columns(result.readings, result.model, PAPER_MACHINE).items():
@@ -93,13 +131,19 @@ def main() -> None:
                 cannot.append(label)
                 continue
             _, _, detect, _ = tester.test(effect.design(result.readings, result.model))
-            (can if detect > 0.01 else cannot).append(f"{label} ({100 * detect:.0f} % visible)" if detect > 0.01 else label)
+            (can if detect > 0.01 else cannot).append(
+                f"{label} ({100 * detect:.0f} % visible)" if detect > 0.01 else label
+            )
         rows.append(f"- effects it can reveal: {', '.join(can) or 'none'}")
-        rows.append(f"- effects it cannot tell from the 21 errors or the line nuisances: {', '.join(cannot) or 'none'}")
+        hidden = ", ".join(cannot) or "none"
+        rows.append(f"- effects it cannot tell from the 21 errors or the line nuisances: {hidden}")
         rows.append("")
         print(f"{name}: rank {info.rank}/{info.unknowns}")
-    rows += ["\"% visible\" is the share of the effect's signal that the 21-error model and the lines' "
-             "zero offsets and slopes cannot absorb on this plan: what the closed loop has to go on.", ""]
+    rows += [
+        "\"% visible\" is the share of the effect's signal that the 21-error model and the lines' "
+        "zero offsets and slopes cannot absorb on this plan: what the closed loop has to go on.",
+        "",
+    ]
     DOCS.parent.mkdir(parents=True, exist_ok=True)
     DOCS.write_text("\n".join(rows), encoding="utf-8")
     print(f"wrote {DOCS}")

@@ -6,7 +6,6 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from volucal.core import plans
 from volucal.core.calibrate import main_report_keys
 from volucal.core.cli import main
@@ -14,8 +13,12 @@ from volucal.core.simulate import Reversal, VirtualMachine, random_truth, write_
 
 
 def volucal(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "volucal.core.cli", *args],
-                          capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "volucal.core.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
 
 
 def test_help_lists_the_commands() -> None:
@@ -34,8 +37,17 @@ def small_plan(tmp_path_factory) -> Path:  # type: ignore[no-untyped-def]
 
 
 def test_calibrate_writes_project_report_and_tables(small_plan: Path, tmp_path: Path) -> None:
-    out = volucal("calibrate", str(small_plan), "--project", str(tmp_path / "p.h5"),
-                  "--report", str(tmp_path / "r.json"), "--export", str(tmp_path / "comp"), "--quiet")
+    out = volucal(
+        "calibrate",
+        str(small_plan),
+        "--project",
+        str(tmp_path / "p.h5"),
+        "--report",
+        str(tmp_path / "r.json"),
+        "--export",
+        str(tmp_path / "comp"),
+        "--quiet",
+    )
     assert out.returncode == 0, out.stderr
     report = json.loads((tmp_path / "r.json").read_text())
     for key in main_report_keys():
@@ -49,8 +61,12 @@ def test_calibrate_writes_project_report_and_tables(small_plan: Path, tmp_path: 
 
 def test_identify_reads_the_project(small_plan: Path, tmp_path: Path) -> None:
     project = tmp_path / "p.h5"
-    assert volucal("calibrate", str(small_plan), "--project", str(project), "--quiet",
-                   "--no-sensitivity").returncode == 0
+    assert (
+        volucal(
+            "calibrate", str(small_plan), "--project", str(project), "--quiet", "--no-sensitivity"
+        ).returncode
+        == 0
+    )
     out = volucal("identify", str(project), "--json")
     assert out.returncode == 0, out.stderr
     content = json.loads(out.stdout)
@@ -66,8 +82,12 @@ def test_missing_plan_is_one_clear_line_and_no_traceback(tmp_path: Path, capsys)
     assert len(err.strip().splitlines()) == 1
 
 
-def test_bad_plan_value_names_the_line_entry_and_field(tmp_path: Path, capsys, small_plan: Path) -> None:  # type: ignore[no-untyped-def]
-    text = small_plan.read_text().replace("direction = [1.0, 0.0, 0.0]", "direction = [0.0, 0.0, 0.0]", 1)
+def test_bad_plan_value_names_the_line_entry_and_field(
+    tmp_path: Path, capsys, small_plan: Path
+) -> None:  # type: ignore[no-untyped-def]
+    text = small_plan.read_text().replace(
+        "direction = [1.0, 0.0, 0.0]", "direction = [0.0, 0.0, 0.0]", 1
+    )
     bad = small_plan.parent / "bad.toml"
     bad.write_text(text)
     code = main(["calibrate", str(bad), "--quiet"])

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from volucal.core.errors import (
     ERROR_IDS,
     ERROR_INFO,

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from volucal.core import plans
 from volucal.core.errors import ERROR_IDS, SQUARENESS_IDS
 from volucal.core.identify import IdentificationError, IdentifyOptions, identify
@@ -15,8 +14,9 @@ ROLL = {"EAX", "EBY", "ECZ"}
 SQUARENESS = set(SQUARENESS_IDS)
 
 
-def _measure(layout: str, seed: int, machine: Machine | None = None, step: float = 12.0,
-             noise: float = 0.1) -> tuple[VirtualMachine, Measurement]:
+def _measure(
+    layout: str, seed: int, machine: Machine | None = None, step: float = 12.0, noise: float = 0.1
+) -> tuple[VirtualMachine, Measurement]:
     truth = random_truth(machine, seed) if machine else random_truth(seed=seed)
     vm = VirtualMachine(truth, seed=seed, laser=LaserSetup(noise_um=noise, noise_urad=noise))
     return vm, vm.measure(plans.layout(layout, truth.machine, step))
@@ -29,7 +29,11 @@ def _errors(result, truth) -> dict[str, tuple[float, float]]:  # type: ignore[no
         if not result.is_identified(eid):
             continue
         q, value, std = result.band(eid)
-        true = np.array([truth.squareness_urad[eid]]) if eid in SQUARENESS_IDS else truth.functions[eid](q)
+        true = (
+            np.array([truth.squareness_urad[eid]])
+            if eid in SQUARENESS_IDS
+            else truth.functions[eid](q)
+        )
         out[eid] = (float(np.max(np.abs(value - true))), float(np.max(std)))
     return out
 
@@ -64,8 +68,11 @@ def test_coverage_of_the_95_percent_band_over_many_seeds() -> None:
                 # the positioning bands include the (systematic) budget: tested separately
                 continue
             q, value, std = result.band(eid, count=11)
-            true = (np.array([vm.truth.squareness_urad[eid]]) if eid in SQUARENESS_IDS
-                    else vm.truth.functions[eid](q))
+            true = (
+                np.array([vm.truth.squareness_urad[eid]])
+                if eid in SQUARENESS_IDS
+                else vm.truth.functions[eid](q)
+            )
             keep = std > 0
             inside += int(np.sum(np.abs(value - true)[keep] < 1.96 * std[keep]))
             total += int(keep.sum())
@@ -109,9 +116,13 @@ def test_redundant_lines_are_those_that_can_be_left_out() -> None:
     assert essential and redundant
     # leaving out an essential line loses rank; leaving out a redundant one does not
     for name, should_lose in ((essential[0], True), (sorted(redundant)[0], False)):
-        reduced = Measurement(measurement.machine, tuple(l for l in measurement.lines if l.name != name))
+        reduced = Measurement(
+            measurement.machine, tuple(l for l in measurement.lines if l.name != name)
+        )
         sub = identify(reduced, IdentifyOptions(redundancy=False))
-        lost = sub.identifiability.rank - (result.identifiability.rank - _own_columns(measurement, name))
+        lost = sub.identifiability.rank - (
+            result.identifiability.rank - _own_columns(measurement, name)
+        )
         assert (lost < 0) == should_lose, name
 
 

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from volucal.core import kinematics as K
 from volucal.core.errors import (
     AXIS_ERROR_IDS,
@@ -18,7 +17,9 @@ from volucal.core.machine import PAPER_MACHINE, Machine, MachineError
 from volucal.core.simulate import random_truth
 
 
-def _random_model(seed: int = 1, machine: Machine = PAPER_MACHINE, scale: float = 5.0) -> ErrorModel:
+def _random_model(
+    seed: int = 1, machine: Machine = PAPER_MACHINE, scale: float = 5.0
+) -> ErrorModel:
     zero = ErrorModel.zero(machine)
     rng = np.random.default_rng(seed)
     return zero.with_parameters(rng.normal(0, scale, zero.parameter_count))
@@ -51,20 +52,26 @@ def paper_eq6_first_order(model: ErrorModel, q: np.ndarray, d: np.ndarray) -> np
     syz = model.squareness_urad["EA0Z"]
     sxz = -model.squareness_urad["EB0Z"]
     e_x = (
-        dx["Z"] + dx["X"] + dx["Y"]
+        dx["Z"]
+        + dx["X"]
+        + dx["Y"]
         - y * (ez["X"] + sxy) * u
         + d2 * (-ez["X"] - ez["Y"] - ez["Z"]) * u
         + z * (ey["X"] + ey["Y"] - sxz) * u
         + d3 * (ey["X"] + ey["Y"] + ey["Z"]) * u
     )
     e_y = (
-        dy["Z"] + dy["X"] + dy["Y"]
+        dy["Z"]
+        + dy["X"]
+        + dy["Y"]
         + d1 * (ez["Y"] + ez["X"] + ez["Z"]) * u
         - z * (ex["X"] + ex["Y"] + syz) * u
         - d3 * (ex["X"] + ex["Y"] + ex["Z"]) * u
     )
     e_z = (
-        dz["Z"] + dz["X"] + dz["Y"]
+        dz["Z"]
+        + dz["X"]
+        + dz["Y"]
         + y * ex["X"] * u
         + d1 * (-ey["X"] - ey["Y"] - ey["Z"]) * u
         + d2 * (ex["X"] + ex["Y"] + ex["Z"]) * u
@@ -97,7 +104,9 @@ def test_first_order_matches_eq6_with_all_errors_and_free_tool_offset() -> None:
     model = _random_model(11)
     q = _points(500)
     d = np.array([35.0, -60.0, 180.0])
-    assert np.allclose(K.first_order_error(model, q, d), paper_eq6_first_order(model, q, d), atol=1e-9)
+    assert np.allclose(
+        K.first_order_error(model, q, d), paper_eq6_first_order(model, q, d), atol=1e-9
+    )
 
 
 def test_exact_minus_first_order_scales_with_the_square_of_the_errors() -> None:
@@ -149,8 +158,10 @@ def test_jacobian_against_finite_differences_of_the_exact_chain() -> None:
         up, down = p0.copy(), p0.copy()
         up[i] += h
         down[i] -= h
-        fd = (K.volumetric_error(model.with_parameters(up), q, tool)
-              - K.volumetric_error(model.with_parameters(down), q, tool)) / (2 * h)
+        fd = (
+            K.volumetric_error(model.with_parameters(up), q, tool)
+            - K.volumetric_error(model.with_parameters(down), q, tool)
+        ) / (2 * h)
         assert np.allclose(jac[:, :, i], fd, atol=1e-7), i
 
 
@@ -168,7 +179,9 @@ def test_another_chain_uses_its_own_lever_arms() -> None:
     """In "WYXFZT" Y comes first, so a yaw of Y acts through x (it cannot in "WXYFZT")."""
     machine = Machine(chain="WYXFZT", tool_offset_mm=(0.0, 0.0, 0.0))
     basis = PolynomialBasis(0.0, 400.0, 1)
-    zero = ErrorModel.zero(machine, lambda a, e: basis if a == "Y" else PolynomialBasis(*machine.stroke(a), 1))
+    zero = ErrorModel.zero(
+        machine, lambda a, e: basis if a == "Y" else PolynomialBasis(*machine.stroke(a), 1)
+    )
     functions = dict(zero.functions)
     # ECY(y) = 10 µrad at y = 400 (linear, zero at 0): P0 + P1 with s = (2y - 400)/400
     functions["ECY"] = ErrorFunction("ECY", basis, np.array([5.0, 5.0]))

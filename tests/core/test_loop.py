@@ -10,7 +10,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from volucal.core import plans
 from volucal.core import simulate as sim
 from volucal.core.errors import BSplineBasis, ErrorFunction, ErrorModel, gauge_null_space
@@ -22,11 +21,13 @@ STEP_MM = 8.0
 JITTER_MM = 2.5
 
 
-def _run(effects: tuple, seed: int = 11, truth: ErrorModel | None = None,
-         layout: str = "full") -> tuple:
+def _run(
+    effects: tuple, seed: int = 11, truth: ErrorModel | None = None, layout: str = "full"
+) -> tuple:
     truth = truth if truth is not None else sim.random_truth(seed=seed)
-    vm = sim.VirtualMachine(truth, effects, seed=seed,
-                            laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE))
+    vm = sim.VirtualMachine(
+        truth, effects, seed=seed, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
+    )
     measurement = vm.measure(plans.layout(layout, truth.machine, STEP_MM, JITTER_MM))
     result = close_loop(measurement)
     return result, result.to_report()
@@ -34,7 +35,9 @@ def _run(effects: tuple, seed: int = 11, truth: ErrorModel | None = None,
 
 def _kept(report: dict, kind: str, axis: str | None) -> dict:
     matches = [e for e in report["effects"] if e["kind"] == kind and e["axis"] == axis]
-    assert matches, f"{kind} {axis} not kept; kept: {[(e['kind'], e['axis']) for e in report['effects']]}"
+    assert matches, (
+        f"{kind} {axis} not kept; kept: {[(e['kind'], e['axis']) for e in report['effects']]}"
+    )
     return matches[0]["parameters"]
 
 
@@ -145,8 +148,9 @@ def test_no_effect_is_added_to_a_clean_machine_over_20_seeds() -> None:
     false_positives = 0
     for seed in range(20):
         truth = sim.random_truth(seed=300 + seed)
-        vm = sim.VirtualMachine(truth, (), seed=300 + seed,
-                                laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE))
+        vm = sim.VirtualMachine(
+            truth, (), seed=300 + seed, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
+        )
         measurement = vm.measure(plans.layout("direct", truth.machine, 12.0, 3.0))
         result = close_loop(measurement, LoopOptions(candidates_per_step=1))
         false_positives += bool(result.final.effects)
@@ -155,7 +159,9 @@ def test_no_effect_is_added_to_a_clean_machine_over_20_seeds() -> None:
 
 def test_an_effect_outside_the_catalogue_is_reported_unexplained_and_not_fitted() -> None:
     truth = sim.random_truth(seed=13)
-    vm = sim.VirtualMachine(truth, (), seed=13, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE))
+    vm = sim.VirtualMachine(
+        truth, (), seed=13, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
+    )
     measurement = vm.measure(plans.layout("full", truth.machine, STEP_MM, JITTER_MM))
     # A reflector mount that twitches at one place of one line only (a set-up fault, neither a
     # machine error nor a catalogue set-up effect): +1 µm bump at 200 mm on y_linear_far.

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from volucal.core import plans
 from volucal.core.io.plan import import_plan, load_plan
 from volucal.core.iso230_2 import evaluate
