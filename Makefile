@@ -5,7 +5,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.volucal-installed
 
-.PHONY: demo test test-core gui package bench lint clean
+.PHONY: demo test gui package bench lint clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -25,8 +25,13 @@ test: $(STAMP)
 gui: $(STAMP)
 	$(VENV)/bin/volucal gui
 
+# One-folder desktop build (PyInstaller), then its smoke test: --help, demo, report, gui.
+package: $(STAMP)
+	$(PY) -m PyInstaller --noconfirm --clean --distpath packaging/dist --workpath packaging/build packaging/volucal.spec
+	QT_QPA_PLATFORM=offscreen $(PY) packaging/smoke_test.py packaging/dist/volucal
+
 bench: $(STAMP)
-	$(PY) benchmarks/run_all.py
+	for b in benchmarks/bench_*.py; do $(PY) $$b || exit 1; done
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

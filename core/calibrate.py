@@ -130,10 +130,8 @@ def calibrate(
         "lines": len(measurement.lines),
         "readings": int(len(final.readings)),
         "parameters": parameters_report(final),
-        "identifiability": final.identifiability.to_json()
-        | {
-            "unidentifiable": [u.message for u in loop.base.identifiability.unidentifiable],
-        },
+        # what the plan can see, with the redundant-line analysis, is the base fit's
+        "identifiability": loop.base.identifiability.to_json(),
         "sign_conventions": sorted({line.sign_convention for line in imported.lines}),
         "outlier_flags": [str(f) for f in imported.flags],
     }

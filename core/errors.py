@@ -20,7 +20,6 @@ from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.interpolate import BSpline
 
 from .machine import AXES, Machine
 
@@ -238,10 +237,14 @@ class BSplineBasis(Basis):
         return len(self.knots) - self.degree - 1
 
     def design(self, position_mm: ArrayLike) -> FloatArray:
+        from scipy.interpolate import BSpline  # scipy.interpolate is slow to import
+
         q = np.atleast_1d(self._clamp(position_mm))
         return BSpline.design_matrix(q, self.knots, self.degree).toarray()
 
     def evaluate(self, position_mm: ArrayLike, coefficients: ArrayLike) -> FloatArray:
+        from scipy.interpolate import BSpline
+
         spline = BSpline(self.knots, np.asarray(coefficients, dtype=float), self.degree)
         return np.asarray(spline(self._clamp(position_mm)))
 

@@ -21,7 +21,7 @@ eigen-decomposition of the column-scaled normal matrix.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,7 +35,6 @@ from .errors import (
     SQUARENESS_IDS,
     Basis,
     BSplineBasis,
-    ErrorFunction,
     ErrorModel,
     gauge_null_space,
 )
@@ -902,10 +901,7 @@ def parameters_report(
     return out
 
 
-EffectFactory = Callable[[Readings], Sequence[EffectTerm]]
-
 __all__ = [
-    "ErrorFunction",
     "Identification",
     "IdentifyOptions",
     "UncertaintyBudget",

@@ -26,7 +26,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._chain_kernel import chain_error
 from .errors import (
     AXIS_ERROR_IDS,
     SQUARENESS_IDS,
@@ -217,6 +216,8 @@ class VolumetricModel:
         per_point = np.ndim(tool_offset_mm) == 2
         if per_point and len(t) != len(q):
             raise ValueError(f"{len(t)} tool offsets for {len(q)} positions")
+        from ._chain_kernel import chain_error  # numba: compiled (or loaded from cache) on use
+
         out = np.empty_like(q)
         starts = range(0, len(q), CHUNK)
         tables = [self.tables[a] for a in AXES]

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import sparse, stats
+from scipy import sparse
 
 from .effects import (
     AbbeOffset,
@@ -49,7 +49,7 @@ from .identify import (
 from .machine import AXES, AXIS_INDEX
 from .measurement import Measurement
 from .progress import CancelToken, ProgressCallback, check, report
-from .readings import QUANTITY_CODE, Readings, flatten
+from .readings import Readings, flatten
 
 FloatArray = NDArray[np.float64]
 
@@ -275,6 +275,8 @@ class _Tester:
         delta = float(np.sum(proj**2 / values[keep]))
         beta[useful] = vectors[:, keep] @ (proj / values[keep])
         f_stat = (delta / k) / self.sigma2
+        from scipy import stats  # slow to import: only when a candidate is tested
+
         log_p = float(stats.f.logsf(f_stat, k, self.dof))
         if not np.isfinite(log_p):
             # far in the tail: the χ² limit, then its leading exponential term
@@ -564,26 +566,35 @@ def _search_local(
 # --------------------------------------------------------------------------------------------
 
 
-def unexplained(identification: Identification, alpha: float = 1e-4) -> list[Unexplained]:
+def unexplained(
+    identification: Identification,
+    cross_validation: CrossValidation | None = None,
+    alpha: float = 1e-4,
+) -> list[Unexplained]:
     """Lines whose run-averaged residual is larger than their repeatability allows.
 
     For each line and target the mean residual over runs is compared with σ/√runs (χ² test over
     the targets, Bonferroni over the lines); a significant line is reported with where its
-    largest systematic residual sits and how large it is.
+    largest systematic residual sits and how large it is. With a cross-validation, its held-out
+    residuals are used: a structure on one line is then sized as that line shows it, not as
+    what is left after the fit partly bent the model towards it.
     """
     readings = identification.readings
+    residual = identification.residual if cross_validation is None else cross_validation.residual
     out = []
     count = len(readings.lines)
     for index, line in enumerate(readings.lines):
         mask = readings.line == index
         targets = readings.target[mask]
-        r = identification.residual[mask]
+        r = residual[mask]
         sigma = float(readings.sigma[mask][0])
         k = int(targets.max()) + 1
         sums = np.bincount(targets, weights=r, minlength=k)
         n = np.bincount(targets, minlength=k)
         valid = n > 0
         means = sums[valid] / n[valid]
+        from scipy import stats
+
         chi2 = float(np.sum(means**2 * n[valid]) / sigma**2)
         p = float(stats.chi2.sf(chi2, int(valid.sum()))) * count
         if p >= alpha:
@@ -700,7 +711,7 @@ def close_loop(
         kept = list(refit.effects)  # type: ignore[arg-type]
         current, cv = refit, cv_new
     report(progress, 0.95, "looking for what is still unexplained")
-    leftover = unexplained(current)
+    leftover = unexplained(current, cv)
     report(progress, 1.0, "loop closed")
     return LoopResult(base, current, cv_base, cv, tuple(steps), tuple(leftover), tuple(warnings))
 
@@ -719,7 +730,6 @@ __all__ = [
     "Finding",
     "LoopOptions",
     "LoopResult",
-    "QUANTITY_CODE",
     "close_loop",
     "diagnose",
     "unexplained",

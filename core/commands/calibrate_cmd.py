@@ -77,6 +77,8 @@ def run(
         bar.close()
     if extra and report is not None:
         write_json_atomic(report, result.report)
+    if extra and project is not None:
+        store_compensation(project, result.report["compensation"])
     if args.json:
         json.dump(_jsonable(result.report), sys.stdout, indent=2)
         print()
@@ -92,6 +94,15 @@ def run(
             if path is not None:
                 print(f"{what}: {path}")
     return 0
+
+
+def store_compensation(project_path: Path, compensation: dict) -> None:  # type: ignore[type-arg]
+    """Replace the project's compensation result (e.g. with the demo's verified rates)."""
+    from ..project import Project
+
+    project = Project.open(project_path)
+    project.put_result("compensation", "main", {"report_json": json.dumps(_jsonable(compensation))})
+    project.save(project_path)
 
 
 def handle(args: argparse.Namespace) -> int:

@@ -17,18 +17,22 @@ from volucal.core.measurement import Line, LineData, Measurement
 from volucal.core.residuals import LoopOptions, close_loop
 
 NOISE = 0.1
-STEP_MM = 8.0
-JITTER_MM = 2.5
+STEP_MM = 12.0  # irregular targets about every 12 mm (ISO 230-2 style), 5 bidirectional runs
+JITTER_MM = 3.5
 
 
 def _run(
-    effects: tuple, seed: int = 11, truth: ErrorModel | None = None, layout: str = "full"
+    effects: tuple,
+    seed: int = 11,
+    truth: ErrorModel | None = None,
+    layout: str = "full",
+    step_mm: float = STEP_MM,
 ) -> tuple:
     truth = truth if truth is not None else sim.random_truth(seed=seed)
     vm = sim.VirtualMachine(
         truth, effects, seed=seed, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
     )
-    measurement = vm.measure(plans.layout(layout, truth.machine, STEP_MM, JITTER_MM))
+    measurement = vm.measure(plans.layout(layout, truth.machine, step_mm, JITTER_MM))
     result = close_loop(measurement)
     return result, result.to_report()
 
@@ -57,7 +61,8 @@ def test_reversal_is_found_and_sized() -> None:
 
 
 def test_cyclic_screw_error_is_found_at_the_lead() -> None:
-    _, report = _run((sim.CyclicError("X", 1.0, 16.0, 0.3),))
+    # a 16 mm screw cycle needs targets closer than half the lead
+    _, report = _run((sim.CyclicError("X", 1.0, 16.0, 0.3),), step_mm=6.0)
     params = _kept(report, "cyclic", "X")
     assert params["period_mm"] == pytest.approx(16.0, rel=0.02)
     assert params["amplitude_um"] == pytest.approx(1.0, rel=0.2)
@@ -137,7 +142,9 @@ def test_short_wavelength_straightness_is_a_higher_order_refinement() -> None:
 
 
 def test_two_effects_at_once_are_both_found() -> None:
-    _, report = _run((sim.Reversal("X", 4.0), sim.CyclicError("Y", 1.2, 16.0, 0.6)), seed=12)
+    _, report = _run(
+        (sim.Reversal("X", 4.0), sim.CyclicError("Y", 1.2, 16.0, 0.6)), seed=12, step_mm=6.0
+    )
     assert _kept(report, "reversal", "X")["value_um"] == pytest.approx(4.0, rel=0.2)
     assert _kept(report, "cyclic", "Y")["amplitude_um"] == pytest.approx(1.2, rel=0.2)
     _only(report, "reversal", "cyclic")

@@ -1,0 +1,327 @@
+"""Identification view: the 21 error curves with their bands, identifiability, residual per line.
+
+Each error is drawn over its stroke with the band value ± 2·u (u the standard uncertainty of the
+identification: covariance and, for the positioning errors, the uncertainty budget; k = 2). An
+error the plan cannot determine is drawn grey and named in the identifiability report, with the
+combination the plan cannot see (:func:`volucal.core.identify.identifiability`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import Qt
+from PySide6.QtWidgets import (
+    QComboBox,
+    QDoubleSpinBox,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QSplitter,
+    QTableWidget,
+    QTableWidgetItem,
+    QTabWidget,
+    QTextBrowser,
+    QVBoxLayout,
+    QWidget,
+)
+from volucal.core.errors import AXIS_ERROR_IDS, COMPONENTS, ERROR_INFO, SQUARENESS_IDS, error_label
+from volucal.core.machine import AXES
+
+from . import evidence, jobs, plots
+from .document import Live, ProjectDocument
+from .records import IdentificationRecord, identify_options
+from .settings import Preferences
+from .view_base import View
+
+#: Coverage factor of the drawn band.
+K_BAND = 2.0
+
+
+class IdentificationView(View):
+    title = "Identification"
+
+    def __init__(self, document: ProjectDocument, parent: QWidget | None = None) -> None:
+        super().__init__(document, parent)
+        self.setObjectName("identificationView")
+        self.name_box = QComboBox()
+        self.name_box.setObjectName("identificationBox")
+        self.name_box.currentTextChanged.connect(self._show)
+        self.spacing = QDoubleSpinBox()
+        self.spacing.setRange(5.0, 1000.0)
+        self.spacing.setSuffix(" mm")
+        self.spacing.setValue(Preferences.load().identify_spacing_mm)
+        self.spacing.setToolTip("knot spacing of the cubic B-spline of every error function")
+        self.run_button = QPushButton("Identify")
+        self.run_button.setObjectName("identifyButton")
+        self.run_button.setToolTip("identify the 21 errors from the project's lines (F5)")
+        self.run_button.clicked.connect(self.run)
+        self.cancel_button = QPushButton("Cancel")
+        self.cancel_button.setEnabled(False)
+        self.cancel_button.clicked.connect(self.runner.cancel_all)
+        self.runner.busyChanged.connect(self._busy)
+        self.summary = QLabel()
+        self.summary.setObjectName("identificationSummary")
+        top = QHBoxLayout()
+        top.addWidget(QLabel("Identification"))
+        top.addWidget(self.name_box)
+        top.addWidget(QLabel("knots every"))
+        top.addWidget(self.spacing)
+        top.addWidget(self.run_button)
+        top.addWidget(self.cancel_button)
+        top.addWidget(self.summary, 1)
+
+        self.curves = pg.GraphicsLayoutWidget()
+        self.curves.setObjectName("errorCurves")
+        self._plots: dict[str, pg.PlotItem] = {}
+        for row, axis in enumerate(AXES):
+            for column, component in enumerate(COMPONENTS):
+                eid = f"E{component}{axis}"
+                plot = self.curves.addPlot(row=row, col=column)
+                plots.style(plot)
+                plot.setMenuEnabled(False)
+                plot.getAxis("left").setWidth(38)
+                self._plots[eid] = plot
+        self._square = self.curves.addPlot(row=len(AXES), col=0, colspan=len(COMPONENTS))
+        plots.style(self._square, "squareness (µrad) ± 2u")
+        self._square.setMaximumHeight(130)
+
+        self.report = QTextBrowser()
+        self.report.setObjectName("identifiabilityReport")
+        self.lines = QTableWidget(0, 6)
+        self.lines.setObjectName("residualTable")
+        self.lines.setHorizontalHeaderLabels(["line", "group", "readings", "RMS", "max |r|",
+                                              "unit"])
+        self.lines.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
+        self.lines.setSelectionBehavior(QTableWidget.SelectionBehavior.SelectRows)
+        self.lines.setSortingEnabled(True)
+        self.lines.itemSelectionChanged.connect(self._show_line_residual)
+        self.residual_plot = plots.make_plot("Residual", "target (mm)", "residual")
+        self.residual_note = QLabel()
+        self.residual_note.setWordWrap(True)
+        residual_page = QSplitter(Qt.Orientation.Horizontal)
+        residual_page.addWidget(self.lines)
+        right = QWidget()
+        right_layout = QVBoxLayout(right)
+        right_layout.setContentsMargins(0, 0, 0, 0)
+        right_layout.addWidget(self.residual_note)
+        right_layout.addWidget(self.residual_plot, 1)
+        residual_page.addWidget(right)
+        self.tabs = QTabWidget()
+        self.tabs.addTab(self.report, "Identifiability")
+        self.tabs.addTab(residual_page, "Residual per line")
+
+        splitter = QSplitter(Qt.Orientation.Vertical)
+        splitter.addWidget(self.curves)
+        splitter.addWidget(self.tabs)
+        splitter.setStretchFactor(0, 3)
+        splitter.setStretchFactor(1, 2)
+        layout = QVBoxLayout(self)
+        layout.addLayout(top)
+        layout.addWidget(splitter, 1)
+        self.record: IdentificationRecord | None = None
+        self.not_identified: set[str] = set()
+
+    # ---- running ---------------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Identify the 21 errors from the project's measurement (in a worker)."""
+        self.ensure_fresh()
+        document = self.document
+        measurement = document.measurement()
+        options = replace(identify_options({"spacing_mm": self.spacing.value()}),
+                          budget=jobs.budget_of(document.project))
+        self.summary.setText("identifying…")
+        self.run_task(
+            "identification",
+            lambda progress, cancel: jobs.run_identification(measurement, options, progress,
+                                                             cancel),
+            self._identified,
+            on_cancel=lambda: self.summary.setText("identification cancelled"),
+        )
+
+    def _identified(self, result: jobs.Identified) -> None:
+        record = IdentificationRecord.from_identification("main", result.identification,
+                                                          result.options)
+        key = ("identifications", "main")
+        self.document.put_results("identify the 21 errors", {key: result.tree()},
+                                  {key: Live(result.identification, record)})
+        self.select("main")
+
+    def _busy(self, busy: bool) -> None:
+        self.run_button.setEnabled(not busy)
+        self.cancel_button.setEnabled(busy)
+
+    # ---- showing ---------------------------------------------------------------------------
+
+    def refresh(self) -> None:
+        current = self.name_box.currentText()
+        names = self.document.results("identifications")
+        self.name_box.blockSignals(True)
+        self.name_box.clear()
+        self.name_box.addItems(names)
+        self.name_box.blockSignals(False)
+        self.run_button.setEnabled(bool(self.document.line_names()) and not self.runner.busy)
+        if names:
+            self.name_box.setCurrentText(current if current in names else
+                                         ("loop" if "loop" in names else names[0]))
+        self._show(self.name_box.currentText())
+
+    def select(self, name: str | None) -> None:
+        if self._stale:
+            self._refresh_now()
+        if name and name in self.document.results("identifications"):
+            self.name_box.setCurrentText(name)
+            self._show(name)
+
+    def _show(self, name: str) -> None:
+        for plot in self._plots.values():
+            plot.clear()
+        self._square.clear()
+        self.not_identified = set()
+        self.lines.setRowCount(0)
+        self.residual_plot.clear()
+        if not name or name not in self.document.results("identifications"):
+            self.record = None
+            self.summary.setText("no identification yet: press Identify" if
+                                 self.document.line_names() else "import lines first")
+            self.report.setHtml("")
+            return
+        record = self.document.identification(name)
+        self.record = record
+        self._draw_curves(record)
+        self._fill_report(record)
+        self._fill_lines(record)
+        rank = record.identifiability
+        um, urad = record.residual_rms()
+        rms = "" if math.isnan(um) else f", residual RMS {um:.3f} µm"
+        rms += "" if math.isnan(urad) else f" / {urad:.3f} µrad"
+        self.summary.setText(f"rank {rank.get('rank')} of {rank.get('unknowns')} unknowns, "
+                             f"σ₀ {record.sigma_scale:.3g}{rms}")
+
+    def _draw_curves(self, record: IdentificationRecord) -> None:
+        for eid in AXIS_ERROR_IDS:
+            plot = self._plots[eid]
+            entry = record.parameters[eid]
+            identified = record.identified(eid)
+            info = ERROR_INFO[eid]
+            unit = plots.unit_label(info.unit)
+            plot.setTitle(f"{eid} {info.paper} {unit}", size="8pt",
+                          color="#000000" if identified else "#999999")
+            if not identified:
+                self.not_identified.add(eid)
+                # inside the plot, so that the column keeps its width
+                note = pg.TextItem("not identified", color="#888888", anchor=(0, 0))
+                plot.addItem(note)
+                note.setPos(float(entry["position_mm"][0]), float(np.max(
+                    np.asarray(entry["value"], dtype=float) + K_BAND * np.asarray(
+                        entry["std"], dtype=float))))
+            x = np.asarray(entry["position_mm"], dtype=float)
+            value = np.asarray(entry["value"], dtype=float)
+            std = np.asarray(entry["std"], dtype=float)
+            colour = plots.color(COMPONENTS.index(info.component)) if identified else "#aaaaaa"
+            plots.add_band(plot, x, value - K_BAND * std, value + K_BAND * std, colour, 50)
+            plot.addItem(pg.PlotDataItem(x, value, pen=plots.pen(colour, 1.8,
+                                                                 dashed=not identified)))
+        values, errors, labels, brushes = [], [], [], []
+        for eid in SQUARENESS_IDS:
+            entry = record.parameters[eid]
+            values.append(float(entry["value"][0]))
+            errors.append(K_BAND * float(entry["std"][0]))
+            identified = record.identified(eid)
+            labels.append(error_label(eid) + ("" if identified else ", not identified"))
+            brushes.append(plots.brush(plots.color(4) if identified else "#bbbbbb", 160))
+            if not identified:
+                self.not_identified.add(eid)
+        x = np.arange(len(values), dtype=float)
+        bars = pg.BarGraphItem(x=x, height=values, width=0.5, brushes=brushes)
+        self._square.addItem(bars)
+        self._square.addItem(pg.ErrorBarItem(x=x, y=np.asarray(values), height=2 * np.asarray(
+            errors), beam=0.15, pen=plots.pen("#000000", 1.2)))
+        plots.category_ticks(self._square.getAxis("bottom"), labels)
+
+    def _fill_report(self, record: IdentificationRecord) -> None:
+        ident = record.identifiability
+        parts = [f"<p><b>Rank {ident.get('rank')}</b> of {ident.get('unknowns')} unknowns "
+                 f"(coefficients of the 21 errors after the gauges, plus line offsets and "
+                 f"slopes).</p>"]
+        missing = ident.get("unidentifiable", []) or []
+        if missing:
+            parts.append("<p><b>Not identified by this plan:</b></p><ul>")
+            parts += [f"<li>{text}</li>" for text in missing]
+            parts.append("</ul>")
+        else:
+            parts.append("<p>Every error is identified by this plan.</p>")
+        redundant = ident.get("redundant_lines", []) or []
+        if redundant:
+            parts.append(f"<p><b>Redundant lines</b> (the plan stays identifiable without each "
+                         f"of them; leave-one-line-out cross-validation uses them): "
+                         f"{', '.join(redundant)}</p>")
+        else:
+            parts.append("<p>No line is redundant: cross-validation holds out blocks of "
+                         "targets.</p>")
+        if record.effects:
+            parts.append("<p><b>Effects fitted with the 21 errors:</b></p><ul>")
+            for effect in record.effects:
+                values = ", ".join(f"{k} {_short(v)}" for k, v in
+                                   (effect.get("parameters") or {}).items())
+                parts.append(f"<li>{effect.get('label')}: {values}</li>")
+            parts.append("</ul>")
+        options = record.options
+        if options:
+            parts.append(f"<p>Cubic B-splines with knots every {options.get('spacing_mm')} mm; "
+                         f"σ₀ = {record.sigma_scale:.4g} (a posteriori standard deviation of unit "
+                         f"weight).</p>")
+        self.report.setHtml("".join(parts))
+
+    def _fill_lines(self, record: IdentificationRecord) -> None:
+        if record.readings is None:
+            self.residual_note.setText(
+                "This identification was stored without its residuals (projects written by "
+                "volucal calibrate keep only the model): press Identify to compute them.")
+            return
+        self.residual_note.setText("Select a line to see its residual by run.")
+        rows = record.readings.line_summary()
+        self.lines.setSortingEnabled(False)
+        self.lines.setRowCount(len(rows))
+        for r, row in enumerate(rows):
+            cells = [row["line"], row["group"], row["readings"], row["rms"], row["max_abs"],
+                     plots.unit_label(row["unit"])]
+            for c, value in enumerate(cells):
+                item = QTableWidgetItem()
+                if isinstance(value, float):
+                    item.setData(Qt.ItemDataRole.DisplayRole, round(value, 4))
+                elif isinstance(value, int):
+                    item.setData(Qt.ItemDataRole.DisplayRole, value)
+                else:
+                    item.setText(str(value))
+                self.lines.setItem(r, c, item)
+        self.lines.setSortingEnabled(True)
+        self.lines.resizeColumnsToContents()
+
+    def _show_line_residual(self) -> None:
+        self.residual_plot.clear()
+        items = self.lines.selectedItems()
+        if not items or self.record is None or self.record.readings is None:
+            return
+        cell = self.lines.item(items[0].row(), 0)
+        if cell is None:
+            return
+        name = cell.text()
+        result = evidence.line_residual(self.record.readings, name)
+        item = self.residual_plot.getPlotItem()
+        plots.style(item, result.title, result.x_label, result.y_label)
+        for index, series in enumerate(result.series):
+            item.addItem(pg.PlotDataItem(series.x, series.y, pen=plots.pen(plots.color(index),
+                                                                             1.2)))
+
+
+def _short(value: object) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_short(v) for v in value) + "]"
+    return str(value)

@@ -1,0 +1,253 @@
+"""The workbench's long jobs as plain functions (GUI-free): request in, result out.
+
+Each job takes ``progress`` and ``cancel`` like the core steps it calls, so that a
+:class:`~volucal.app.tasks.Task` runs it on a worker thread and a test can call it directly.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import shutil
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from volucal.core.calibrate import CalibrationRequest, LoopSource, calibrate, measured_range
+from volucal.core.compensation import ExportOptions, ExportResult, ModelSource, export_model
+from volucal.core.compensation.export import compensation_report
+from volucal.core.compensation.source import ErrorSource
+from volucal.core.effects import Effect
+from volucal.core.identify import (
+    CrossValidation,
+    Identification,
+    IdentifyOptions,
+    UncertaintyBudget,
+    cross_validate,
+    identify,
+)
+from volucal.core.measurement import Measurement
+from volucal.core.progress import CancelToken, ProgressCallback, check, report
+from volucal.core.project import Project
+from volucal.core.residuals import LoopOptions, LoopResult, close_loop
+from volucal.core.resources import demo_plan
+
+from .factors import RANKING_GRID_MM, SensitivitySetup, sensitivity_tree
+from .records import (
+    LoopRecord,
+    identification_result_tree,
+    json_text,
+    stored_model,
+)
+
+
+def _sub(progress: ProgressCallback | None, start: float, stop: float) -> ProgressCallback | None:
+    if progress is None:
+        return None
+    return lambda f, m: progress(start + (stop - start) * f, m)
+
+
+def budget_of(project: Project) -> UncertaintyBudget:
+    """The plan's uncertainty budget, as ``volucal calibrate`` uses it."""
+    return UncertaintyBudget.from_mapping(project.uncertainty) if project.uncertainty else \
+        UncertaintyBudget()
+
+
+# --------------------------------------------------------------------------------------------
+# Identification and the loop
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class Identified:
+    identification: Identification
+    options: IdentifyOptions
+
+    def tree(self) -> dict[str, Any]:
+        return identification_result_tree(self.identification, self.options)
+
+
+def run_identification(measurement: Measurement, options: IdentifyOptions,
+                       progress: ProgressCallback | None = None,
+                       cancel: CancelToken | None = None) -> Identified:
+    return Identified(identify(measurement, options, progress=progress, cancel=cancel), options)
+
+
+@dataclass(frozen=True, eq=False)
+class LoopRun:
+    loop: LoopResult
+    options: LoopOptions
+
+    def trees(self) -> dict[tuple[str, str], dict[str, Any]]:
+        """The project results of a loop: the identifications before and after, the report."""
+        identify_options = self.options.identify
+        return {
+            ("identifications", "main"): identification_result_tree(self.loop.base,
+                                                                     identify_options),
+            ("identifications", "loop"): identification_result_tree(self.loop.final,
+                                                                     identify_options),
+            ("loops", "main"): LoopRecord.from_loop("main", self.loop).to_tree(),
+        }
+
+
+def run_loop(measurement: Measurement, options: LoopOptions,
+             progress: ProgressCallback | None = None,
+             cancel: CancelToken | None = None) -> LoopRun:
+    return LoopRun(close_loop(measurement, options, progress, cancel), options)
+
+
+@dataclass(frozen=True, eq=False)
+class Refit:
+    """The 21 errors refitted with the effects the user accepted."""
+
+    identification: Identification
+    cross_validation: CrossValidation
+    options: IdentifyOptions
+    accepted: tuple[str, ...]
+    rejected: tuple[str, ...]
+
+
+def refit_with_effects(
+    measurement: Measurement,
+    effects: Sequence[Effect],
+    options: IdentifyOptions,
+    initial: Any,
+    redundant_lines: Sequence[str],
+    rejected: Sequence[str] = (),
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken | None = None,
+) -> Refit:
+    """Identify again with exactly ``effects`` (the loop's refit: no redundancy analysis, the
+    previous model as the linearisation point) and cross-validate as the loop does."""
+    refit_options = replace(options, redundancy=False, max_iterations=3)
+    result = identify(measurement, refit_options, effects=list(effects), progress=_sub(
+        progress, 0.0, 0.8), cancel=cancel, initial=initial)
+    check(cancel)
+    report(progress, 0.85, "cross-validating")
+    cv = cross_validate(result.system, result.readings, list(redundant_lines))
+    report(progress, 1.0, "refitted")
+    return Refit(result, cv, options, tuple(e.label for e in effects), tuple(rejected))
+
+
+# --------------------------------------------------------------------------------------------
+# The demo project
+# --------------------------------------------------------------------------------------------
+
+
+def demo_project_path(cache_dir: Path) -> Path:
+    """Where the demo project of this volucal version and demo data set is cached."""
+    from volucal import __version__
+
+    digest = hashlib.sha256(demo_plan().read_bytes() + __version__.encode()).hexdigest()[:12]
+    return Path(cache_dir) / f"demo-{digest}.h5"
+
+
+@dataclass(frozen=True, eq=False)
+class DemoProject:
+    path: Path
+    loop: LoopRun
+    sensitivity: Any
+
+
+def build_demo_project(path: Path, sensitivity_n: int = 1400,
+                       progress: ProgressCallback | None = None,
+                       cancel: CancelToken | None = None) -> DemoProject:
+    """Run ``volucal calibrate`` on the embedded demo plan and store the workbench's results
+    (residuals, effect candidates, the sensitivity ranking over a workspace grid with its arrays)
+    with it, at ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(path.stem + ".partial.h5")
+    options = LoopOptions()
+    result = calibrate(
+        CalibrationRequest(plan_path=demo_plan(), project_path=partial, loop=options,
+                           sensitivity=False),
+        progress=_sub(progress, 0.0, 0.8), cancel=cancel,
+    )
+    loop = result.loop
+    budget_options = replace(options, identify=replace(options.identify,
+                                                       budget=loop.base.budget))
+    run = LoopRun(loop, budget_options)
+    setup = SensitivitySetup.identified(result.source.model, loop.final.covariance,
+                                        n=sensitivity_n, identification="loop")
+    check(cancel)
+    sensitivity = setup.run(result.source.model, loop.final.covariance, RANKING_GRID_MM,
+                            progress=_sub(progress, 0.8, 0.95), cancel=cancel)
+    report(progress, 0.96, "saving the demo project")
+    project = Project.open(partial)
+    for (kind, name), tree in run.trees().items():
+        project.put_result(kind, name, tree)
+    project.put_result("sensitivity", "main", sensitivity_tree(sensitivity, setup))
+    project.save(path)
+    partial.unlink(missing_ok=True)
+    report(progress, 1.0, "demo project ready")
+    return DemoProject(path, run, sensitivity)
+
+
+# --------------------------------------------------------------------------------------------
+# Compensation
+# --------------------------------------------------------------------------------------------
+
+
+def export_source(project: Project, identification: str,
+                  live: Identification | None = None, with_effects: bool = False
+                  ) -> ErrorSource:
+    """The error source of an export.
+
+    Without effects: the stored model of ``identification`` as a :class:`ModelSource`, read
+    exactly as ``volucal export PROJECT --identification NAME`` reads it (same files). With
+    effects: the live identification's model plus its machine effects (reversal, cyclic, ...)
+    as ``volucal calibrate --export`` uses it, so that the tables differ forward and backward.
+    """
+    if with_effects:
+        if live is None:
+            raise ValueError("the loop's effects need the identification computed in this session")
+        return LoopSource(live, measured_range(live))
+    return ModelSource(stored_model(project, identification))
+
+
+@dataclass(frozen=True, eq=False)
+class ExportPreview:
+    """An export written to a temporary folder, read back, and what it predicts."""
+
+    result: ExportResult
+    texts: dict[str, str]
+    report: dict[str, Any]
+
+
+def preview_export(source: ErrorSource, format: str, options: ExportOptions,
+                   progress: ProgressCallback | None = None,
+                   cancel: CancelToken | None = None) -> ExportPreview:
+    folder = Path(tempfile.mkdtemp(prefix="volucal-preview-"))
+    try:
+        result = export_model(source, format, folder, options, progress, cancel)
+        texts = {}
+        for file in result.files:
+            data = file.read_bytes()
+            texts[file.name] = data.decode("utf-8", errors="replace")
+        report_block = compensation_report(source, tuple(result.files), result.verification)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    return ExportPreview(result, texts, report_block)
+
+
+def write_export(source: ErrorSource, format: str, out_dir: Path, options: ExportOptions,
+                 progress: ProgressCallback | None = None,
+                 cancel: CancelToken | None = None) -> ExportPreview:
+    result = export_model(source, format, out_dir, options, progress, cancel)
+    texts = {f.name: f.read_bytes().decode("utf-8", errors="replace") for f in result.files}
+    return ExportPreview(result, texts, compensation_report(source, tuple(result.files),
+                                                            result.verification))
+
+
+def compensation_tree(preview: ExportPreview, identification: str, with_effects: bool,
+                      out_dir: Path | None) -> dict[str, Any]:
+    """What the project keeps of an export (the files themselves stay on disk)."""
+    return {
+        "report_json": json_text(preview.report),
+        "export_json": json_text(preview.result.to_json()),
+        "identification": identification,
+        "with_effects": with_effects,
+        "out_dir": "" if out_dir is None else str(out_dir),
+    }

@@ -1,0 +1,135 @@
+"""How responsive the workbench is: `python benchmarks/bench_gui.py` (offscreen, no display).
+
+Measures, on a small simulated session (nine lines, looped) and on the embedded demo logs:
+
+- the longest gap between 10 ms timer ticks of the GUI thread while an EFAST workspace map runs
+  on a worker thread (the user's experience of a long computation: under 100 ms is fluid);
+- the round trip of a worker task (start → result delivered on the GUI thread);
+- the time to show each view with its content;
+- the import wizard's preview of the 49 demo logs (read in a worker).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
+
+from PySide6.QtCore import QSettings, QStandardPaths, QTimer  # noqa: E402
+from volucal.app import jobs, tasks  # noqa: E402
+from volucal.app.main import application  # noqa: E402
+from volucal.app.mainwindow import MainWindow  # noqa: E402
+from volucal.core import plans  # noqa: E402
+from volucal.core.identify import IdentifyOptions  # noqa: E402
+from volucal.core.io.plan import import_plan, load_plan  # noqa: E402
+from volucal.core.project import Project  # noqa: E402
+from volucal.core.residuals import LoopOptions  # noqa: E402
+from volucal.core.resources import demo_plan  # noqa: E402
+from volucal.core.simulate import LaserSetup, demo_machine, write_session  # noqa: E402
+
+
+def wait(app, condition, timeout_s=600.0):
+    deadline = time.perf_counter() + timeout_s
+    while not condition():
+        app.processEvents()
+        time.sleep(0.001)
+        if time.perf_counter() > deadline:
+            raise TimeoutError("the benchmark's task did not finish")
+
+
+def small_project(folder: Path) -> Path:
+    vm = dataclasses.replace(demo_machine(), laser=LaserSetup(noise_um=0.15,
+                                                              runs_per_direction=2))
+    plan = write_session(vm.measure(plans.layout("nine-line", vm.machine, 10.0, 2.0)), folder)
+    imported = import_plan(load_plan(plan))
+    project = Project.create(imported.measurement.machine)
+    project.add_lines(imported.plan, imported.measurement, imported.source_bytes, imported.raw,
+                      provenance={line.name: line.provenance() for line in imported.lines})
+    run = jobs.run_loop(imported.measurement, LoopOptions(
+        identify=IdentifyOptions(spacing_mm=50.0), max_steps=2))
+    for (kind, name), tree in run.trees().items():
+        project.put_result(kind, name, tree)
+    return project.save(folder / "small.h5")
+
+
+def main() -> None:
+    app = application()
+    folder = Path(tempfile.mkdtemp(prefix="volucal-bench-gui-"))
+    QStandardPaths.setTestModeEnabled(True)
+    QSettings.setPath(QSettings.Format.IniFormat, QSettings.Scope.UserScope, str(folder))
+    print(f"volucal workbench benchmark (Python {sys.version.split()[0]}, "
+          f"{os.cpu_count()} CPU)")
+    started = time.perf_counter()
+    path = small_project(folder)
+    print(f"setup: small looped project in {time.perf_counter() - started:.1f} s")
+
+    window = MainWindow()
+    window.resize(1400, 900)
+    window.show()
+    window.open_project(path)
+    app.processEvents()
+
+    for key in ("machine", "measurement", "identification", "loop", "sensitivity",
+                "compensation"):
+        view = window.views[key]
+        view._stale = True
+        t0 = time.perf_counter()
+        window.show_view(key)
+        app.processEvents()
+        print(f"show the {key} view: {1000 * (time.perf_counter() - t0):.0f} ms")
+
+    trips = []
+    for _ in range(20):
+        done = []
+        t0 = time.perf_counter()
+        window.runner.run("round trip", lambda progress, cancel: 1, done.append)
+        wait(app, lambda done=done: bool(done) and not window.runner.busy)
+        trips.append(time.perf_counter() - t0)
+    print(f"worker task round trip: median {1000 * statistics.median(trips):.2f} ms, "
+          f"max {1000 * max(trips):.2f} ms")
+
+    sensitivity = window.views["sensitivity"]
+    window.show_view("sensitivity")
+    sensitivity.n_box.setValue(400)
+    sensitivity.map_step.setValue(10.0)
+    ticks: list[float] = []
+    timer = QTimer()
+    timer.setInterval(10)
+    timer.timeout.connect(lambda: ticks.append(time.perf_counter()))
+    timer.start()
+    sensitivity.run_map()
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < 5.0:
+        app.processEvents()
+        time.sleep(0.001)
+    sensitivity.runner.cancel_all()
+    t1 = time.perf_counter()
+    wait(app, lambda: not sensitivity.runner.busy)
+    cancel_s = time.perf_counter() - t1
+    timer.stop()
+    gaps = [b - a for a, b in zip(ticks, ticks[1:], strict=False)]
+    print(f"EFAST map on a worker (41 × 41 × 36 points, N = 400), 5 s: {len(ticks)} timer "
+          f"ticks of 10 ms, longest gap {1000 * max(gaps):.1f} ms, median "
+          f"{1000 * statistics.median(gaps):.1f} ms; cancelled in {1000 * cancel_s:.0f} ms")
+
+    wizard = window.import_logs([demo_plan()])
+    t0 = time.perf_counter()
+    wizard.next()
+    wait(app, wizard.preview_page.isComplete)
+    print(f"import wizard: preview of {len(wizard.previews)} demo logs in "
+          f"{time.perf_counter() - t0:.2f} s")
+    wizard.reject()
+    window.document.undo_stack.setClean()
+    window.close()
+    tasks.wait_for_all()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,174 @@
+"""The calibration report of the demo, rendered to PDF and read back with poppler's pdftotext and
+pdfinfo (Debian poppler-utils; .ci/install-report-tools.sh installs them).
+
+The demo pipeline runs once for the module (volucal.core.calibrate, then the demo's verification
+on the virtual machine, as ``volucal demo`` does), which takes about a minute.
+"""
+
+import hashlib
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+from volucal.app.report import write_report
+from volucal.core import cli
+from volucal.core.calibrate import CalibrationRequest, calibrate, write_json_atomic
+from volucal.core.commands.demo_cmd import verify_demo
+from volucal.core.conformance import CONFORMS, DOES_NOT_CONFORM, NO_DECISION, decide
+from volucal.core.errors import ERROR_IDS
+from volucal.core.identify import UncertaintyBudget
+from volucal.core.iso230_2 import evaluate
+from volucal.core.project import Project
+from volucal.core.resources import demo_plan
+
+DOCS = Path(__file__).resolve().parents[2] / "docs"
+TOOLS = ("pdftotext", "pdfinfo")
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    """demo.h5, report.json (with the verified rates) and compensation/ in one folder."""
+    folder = tmp_path_factory.mktemp("demo")
+    # fewer EFAST samples than the demo's 1400 per factor: the report only lays them out
+    result = calibrate(CalibrationRequest(
+        demo_plan(), project_path=folder / "demo.h5", report_path=folder / "report.json",
+        export_dir=folder / "compensation", sensitivity_n=400))
+    verify_demo(result)
+    write_json_atomic(folder / "report.json", result.report)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def poppler():
+    missing = [t for t in TOOLS if shutil.which(t) is None]
+    if missing:
+        pytest.skip(f"{', '.join(missing)} not installed (bash .ci/install-report-tools.sh)")
+
+
+def pdf_text(path: Path) -> str:
+    raw = subprocess.run(["pdftotext", "-layout", str(path), "-"], check=True,
+                         capture_output=True, text=True).stdout
+    # the report's fonts have ligatures off: "fi" is extracted as two letters, as typed
+    assert not set("\ufb00\ufb01\ufb02\ufb03\ufb04") & set(raw), "ligatures in the PDF text"
+    return raw
+
+
+def pdf_pages(path: Path) -> int:
+    info = subprocess.run(["pdfinfo", str(path)], check=True, capture_output=True,
+                          text=True).stdout
+    return int(re.search(r"^Pages:\s+(\d+)", info, re.MULTILINE).group(1))
+
+
+def test_demo_report_has_every_part_on_its_pages(demo_run, poppler, tmp_path):
+    pdf = tmp_path / "report.pdf"
+    written = write_report(demo_run / "demo.h5", pdf, tolerance_um=25.0)
+    assert pdf_pages(pdf) == written.pages >= 8
+    text = pdf_text(pdf)
+    for title in ("Calibration report", "Summary", "Machine", "Measurement plan", "Traceability",
+                  "Positioning and straightness (ISO 230-2, ISO 230-1)", "Identified errors",
+                  "Closed loop", "Sensitivity ranking (EFAST)", "Compensation",
+                  "Uncertainty statement", "Conformance (ISO 14253-1)"):
+        assert title in text, title
+    assert f"page {written.pages} of {written.pages}" in text
+    project = Project.open(demo_run / "demo.h5")
+    assert project.machine.name in text
+    # every line of the plan, and the operator and serial number its log names
+    for name in project.lines:
+        assert re.search(rf"^\s*{re.escape(name)}\s", text, re.MULTILINE), name
+    assert "volucal virtual machine" in text and "VM-XL80-0001" in text
+    # the 18 error curves are titled with their ISO id and the paper's symbol
+    assert "EXX (δx(x)) — positioning" in text and "ECZ (εz(z)) — roll" in text
+    # the loop found the demo's two hidden effects
+    assert "reversal X" in text and "cyclic Y 16 mm" in text
+    # the plan's identifiability is that of the 21-error fit, which tests every line
+    assert "Every one of the 49 lines is redundant" in " ".join(text.split())
+
+
+def test_demo_report_lists_compensation_files_with_their_checksums(demo_run, poppler,
+                                                                   tmp_path):
+    pdf = tmp_path / "report.pdf"
+    write_report(demo_run / "demo.h5", pdf)
+    text = pdf_text(pdf)
+    files = sorted(p for p in (demo_run / "compensation").rglob("*") if p.is_file())
+    assert files
+    for path in files:
+        assert hashlib.sha256(path.read_bytes()).hexdigest() in text, path.name
+        assert str(path.relative_to(demo_run / "compensation")) in text
+    # predicted and verified rates, as report.json has them
+    report = json.loads((demo_run / "report.json").read_text())
+    predicted = report["compensation"]["methods"]["volumetric_grid"]["rms_percent"]
+    verified = report["compensation"]["verified_on_virtual_machine"]["nc_rewriting"]
+    row = next(line for line in text.splitlines() if line.strip().startswith("volumetric_grid "))
+    assert f"{predicted['X']:.1f}" in row and f"{predicted['Z']:.1f}" in row
+    rows = [line for line in text.splitlines() if line.strip().startswith("nc_rewriting")]
+    measured = verified["remeasured"]["rms_percent"]
+    assert any(f"{measured['X']:.1f}" in r and f"{measured['Y']:.1f}" in r for r in rows)
+
+
+def test_conformance_decision_follows_the_rule_on_iso_230_2_accuracy(demo_run, poppler,
+                                                                     tmp_path):
+    project = Project.open(demo_run / "demo.h5")
+    budget = UncertaintyBudget()
+    verdicts = {}
+    for line in project.measurement().lines:
+        if line.spec.quantity == "linear":
+            travel = float(line.data.targets_mm.max() - line.data.targets_mm.min())
+            u = float(budget.positioning_std_um([travel])[0])
+            verdicts[line.name] = decide(evaluate(line.data).A_um, 2 * u, 25.0)
+    expected = (DOES_NOT_CONFORM if DOES_NOT_CONFORM in verdicts.values()
+                else CONFORMS if set(verdicts.values()) == {CONFORMS} else NO_DECISION)
+    pdf = tmp_path / "report.pdf"
+    write_report(demo_run / "demo.h5", pdf, tolerance_um=25.0)
+    text = " ".join(pdf_text(pdf).split())
+    assert f"Decision: the machine {expected}" in text
+    assert "T = 25.00 µm" in text
+
+
+def test_report_command_writes_the_pdf_and_prints_json(demo_run, poppler, tmp_path, capsys):
+    pdf = tmp_path / "cli.pdf"
+    code = cli.main(["report", str(demo_run / "demo.h5"), "-o", str(pdf), "--tolerance-um",
+                     "40", "--tolerance-on", "volumetric", "--json"])
+    assert code == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["pages"] == pdf_pages(pdf)
+    conformance = printed["report"]["conformance"]
+    assert conformance["quantity"] == "volumetric" and conformance["tolerance_um"] == 40.0
+    (item,) = conformance["items"]
+    assert conformance["verdict"] == decide(item["value_um"], item["expanded_uncertainty_um"],
+                                            40.0)
+
+
+def test_report_json_docs_name_every_key_the_demo_produces(demo_run):
+    """docs/report_json.md documents every key of report.json as produced (error ids, which
+    key whole blocks, are documented once as a pattern)."""
+    report = json.loads((demo_run / "report.json").read_text())
+    documented = set(re.findall(r"`([A-Za-z0-9_]+)`", (DOCS / "report_json.md").read_text()))
+    keys: set[str] = set()
+
+    def walk(value):
+        if isinstance(value, dict):
+            for key, child in value.items():
+                if key not in ERROR_IDS:
+                    keys.add(key)
+                walk(child)
+        elif isinstance(value, list):
+            for child in value:
+                walk(child)
+
+    walk(report)
+    assert sorted(keys - documented) == []
+
+
+def test_report_of_a_workbench_project(small_project, poppler, tmp_path):
+    """A project the workbench saved (its own result trees, no compensation yet) reports too."""
+    pdf = tmp_path / "small.pdf"
+    written = write_report(small_project, pdf)
+    text = pdf_text(pdf)
+    assert pdf_pages(pdf) == written.pages
+    for title in ("Identified errors", "Closed loop", "Sensitivity ranking (EFAST)"):
+        assert title in text
+    assert "No compensation was computed." in text
+    assert "Conformance" not in text  # no tolerance given

@@ -1,0 +1,104 @@
+"""The calibration report's content, gathered without Qt (volucal.core.report_content), on the
+checked-in format-1 project: five hand-made lines from four file formats, no results yet."""
+
+import hashlib
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from volucal.core.iso230_2 import evaluate
+from volucal.core.project import Project
+from volucal.core.report_content import Paragraph, ReportRequest, Table, build_report
+from volucal.core.userror import UserError
+
+V1 = Path(__file__).resolve().parents[1] / "data" / "projects" / "format_v1.h5"
+
+
+@pytest.fixture
+def project(tmp_path) -> Path:
+    path = tmp_path / "v1.h5"
+    shutil.copyfile(V1, path)
+    return path
+
+
+def _section(content, title):
+    return next(s for s in content.sections if s.title.startswith(title))
+
+
+def _tables(section):
+    return [b for b in section.blocks if isinstance(b, Table)]
+
+
+def test_traceability_names_files_checksums_operator_and_serial(project):
+    content = build_report(ReportRequest(project))
+    stored = Project.open(project)
+    section = _section(content, "Traceability")
+    facts = dict(_tables(section)[0].rows)
+    assert facts["Operators"] == "J. Smith"
+    assert facts["Serial numbers in the logs"] == "1234"
+    assert facts["Instrument (log format)"] == "iso230-2, rta, rtl, table"
+    assert hashlib.sha256(project.read_bytes()).hexdigest() in facts["Project file"]
+    logs = {row[0]: row for row in _tables(section)[1].rows}
+    for name in stored.lines:
+        digest = hashlib.sha256(stored.raw_bytes(name)).hexdigest()
+        assert logs[name][-1] == digest[:16]
+    assert logs["x_y0_z0"][5].startswith("2016-12-12") and "(log: 12/12/2016)" in logs["x_y0_z0"][5]
+    assert logs["z_iso"][5] == "no date in the log"  # an ISO table carries no time
+
+
+def test_iso_230_2_table_has_each_positioning_line_and_straightness_apart(project):
+    content = build_report(ReportRequest(project))
+    stored = Project.open(project)
+    positioning, straight = _tables(_section(content, "Positioning"))
+    rows = {row[0]: row for row in positioning.rows}
+    assert set(rows) == {"z_linear", "z_iso", "x_y0_z0", "x_pitch_hand"}
+    expected = evaluate(stored.lines["z_iso"].corrected)
+    assert rows["z_iso"][3] == f"{expected.A_um:.2f}"
+    assert rows["z_iso"][7] == f"{expected.R_um:.2f}"
+    assert rows["z_linear"][3] == "–"  # one run each way: no standard deviation, no A
+    assert rows["x_pitch_hand"][1] == "µrad"
+    assert [row[0] for row in straight.rows] == ["y_straightness_x"]
+
+
+def test_missing_results_are_said_not_left_out(project):
+    content = build_report(ReportRequest(project))
+    titles = [s.title for s in content.sections]
+    assert "Identified errors" not in titles  # no identification tree in this project
+    for title, text in (("Closed loop", "not run"), ("Sensitivity", "not run"),
+                        ("Compensation", "No compensation")):
+        paragraphs = [b.text for b in _section(content, title).blocks
+                      if isinstance(b, Paragraph)]
+        assert any(text in p for p in paragraphs)
+    json.dumps(content.to_json(), allow_nan=False)
+
+
+def test_conformance_is_added_only_with_a_tolerance(project):
+    assert build_report(ReportRequest(project)).conformance is None
+    content = build_report(ReportRequest(project, tolerance_um=100.0))
+    assert content.conformance is not None
+    assert content.conformance.quantity == "accuracy"
+    assert content.sections[-1].title == "Conformance (ISO 14253-1)"
+    with pytest.raises(UserError, match="no identification"):
+        build_report(ReportRequest(project, tolerance_um=10.0, tolerance_on="volumetric"))
+    with pytest.raises(UserError, match="tolerance on"):
+        build_report(ReportRequest(project, tolerance_um=10.0, tolerance_on="flatness"))
+
+
+def test_a_report_json_of_another_run_is_refused(project, tmp_path):
+    other = tmp_path / "report.json"
+    other.write_text(json.dumps({"residual_rms_um": {"before_loop": 1.0, "after_loop": 0.5}}))
+    with pytest.raises(UserError, match="not of the project's run"):
+        build_report(ReportRequest(project, report_json=other))
+    # found beside the project by default, it is silently not used
+    content = build_report(ReportRequest(project))
+    assert content.sources["verification"] == ""
+
+
+def test_errors_name_the_file(tmp_path):
+    with pytest.raises(UserError, match="no such project file"):
+        build_report(ReportRequest(tmp_path / "missing.h5"))
+    empty = tmp_path / "empty.h5"
+    Project.create().save(empty)
+    with pytest.raises(UserError, match="no measured lines"):
+        build_report(ReportRequest(empty))
