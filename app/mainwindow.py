@@ -303,7 +303,9 @@ class MainWindow(QMainWindow):
         return True
 
     def write_report(self, pdf_path: Path | None = None) -> None:
-        """Save the project, then render its calibration report (PDF) in a worker."""
+        """Save the project, gather its calibration report in a worker (the slow part: the
+        project, ISO 230-2, bands, conformance), then lay out the PDF on the GUI thread, where
+        Qt's text layout must run."""
         if not self.save():
             return
         project = self.document.path
@@ -315,14 +317,24 @@ class MainWindow(QMainWindow):
             if not chosen:
                 return
             pdf_path = Path(chosen)
-        from .report import write_report
+        from volucal.core.report_content import ReportRequest, build_report
 
         target = Path(pdf_path)
+
+        def render(content: object) -> None:
+            from .report import write_content
+
+            try:
+                written = write_content(content, target)  # type: ignore[arg-type]
+            except UserError as exc:
+                show_error(self, "Calibration report", str(exc))
+                return
+            self.status_text.setText(f"report written: {written.path} ({written.pages} pages)")
+
         self.runner.run(
             "calibration report",
-            lambda progress, cancel: write_report(project, target),
-            lambda written: self.status_text.setText(
-                f"report written: {written.path} ({written.pages} pages)"),
+            lambda progress, cancel: build_report(ReportRequest(project_path=project)),
+            render,
             lambda message: show_error(self, "Calibration report", message),
             lambda text: show_bug(self, "Calibration report", text),
         )

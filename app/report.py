@@ -110,6 +110,12 @@ def write_report(
         tolerance_um=tolerance_um,
         tolerance_on=tolerance_on,
     ))
+    return write_content(content, pdf_path)
+
+
+def write_content(content: ReportContent, pdf_path: str | Path) -> ReportFile:
+    """Render gathered report content to a PDF (atomically). Call it on the GUI thread in a
+    running application: Qt's text layout is not safe to use from a worker thread."""
     target = Path(pdf_path)
     if target.parent and not target.parent.is_dir():
         raise UserError(f"{target}: the folder {target.parent} does not exist")

@@ -340,26 +340,9 @@ def diagnose(
     excluded_kind_axis = {(k, a) for k, a, _ in exclude}
     excluded = set(exclude)
 
-    def add(effect: Effect, trials: int = 1, searched: list[Effect] | None = None) -> None:
-        if effect.key in excluded:
-            return
-        columns = effect.design(readings, model)
-        if not np.any(columns):
-            return
-        f, p, detect, beta = tester.test(columns)
-        if detect <= 0.0:
-            return
-        findings.append(
-            Finding(
-                effect,
-                f,
-                _corrected(p, trials),
-                trials,
-                effect.magnitude_um(beta),
-                detect,
-                _where(readings, columns, beta),
-            )
-        )
+    def add(effect: Effect) -> None:
+        if effect.key not in excluded:
+            _append(findings, tester, effect, readings, model)
 
     moving = _moving_axes(readings)
     step = _typical_step(readings)
@@ -395,25 +378,19 @@ def diagnose(
             if np.all(np.isfinite(temp)) and np.ptp(temp) > 0.05:
                 add(ThermalDrift(axis, "temperature", reference_mm=ref))
             else:
-                best = None
                 taus = [1800.0, 3600.0, 7200.0, 14400.0, 28800.0, 57600.0]
-                for tau in taus:
-                    effect = ThermalDrift(axis, "time", tau, ref)
-                    f, p, detect, beta = tester.test(effect.design(readings, model))
-                    if best is None or f > best[1]:
-                        best = (effect, f, p, detect, beta)
-                if best is not None and best[3] > 0.0:
-                    effect, f, p, detect, beta = best
-                    findings.append(
-                        Finding(
-                            effect,
-                            f,
-                            _corrected(p, len(taus)),
-                            len(taus),
-                            effect.magnitude_um(beta),
-                            detect,
-                            "all lines along " + axis,
-                        )
+                drifts = [ThermalDrift(axis, "time", tau, ref) for tau in taus]
+                scores = [tester.test(d.design(readings, model))[0] for d in drifts]
+                best_drift = drifts[int(np.argmax(scores))]
+                if best_drift.key not in excluded:
+                    _append(
+                        findings,
+                        tester,
+                        best_drift,
+                        readings,
+                        model,
+                        len(taus),
+                        "all lines along " + axis,
                     )
         _search_local(tester, readings, model, axis, findings, excluded)
     for direction in AXES:
@@ -442,6 +419,30 @@ def diagnose(
     ]
     findings.sort(key=lambda f: (f.log10_false_alarm, -f.f_statistic))
     return findings, warnings
+
+
+def _append(
+    findings: list[Finding],
+    tester: _Tester,
+    effect: Effect,
+    readings: Readings,
+    model: object,
+    trials: int = 1,
+    where: str | None = None,
+) -> None:
+    """Test one candidate and keep it as a finding when the model cannot absorb it all."""
+    columns = effect.design(readings, model)  # type: ignore[arg-type]
+    if not np.any(columns):
+        return
+    f, log10_p, detect, beta = tester.test(columns)
+    if detect <= 0.0:
+        return
+    place = where if where is not None else _where(readings, columns, beta)
+    findings.append(
+        Finding(
+            effect, f, _corrected(log10_p, trials), trials, effect.magnitude_um(beta), detect, place
+        )
+    )
 
 
 def _corrected(log10_p: float, trials: int) -> float:
@@ -495,21 +496,15 @@ def _search_period(
     # independent frequencies over the band: span/shortest − span/longest
     trials = max(1, int(span / shortest - span / longest))
     effect = Cyclic(axis, float(best[1]), (1,), ref)
-    if effect.key in excluded:
-        return
-    columns = effect.design(readings, model)
-    f, p, detect, beta = tester.test(columns)
-    if detect > 0.0:
-        findings.append(
-            Finding(
-                effect,
-                f,
-                _corrected(p, trials),
-                trials,
-                effect.magnitude_um(beta),
-                detect,
-                f"along {axis}, period {best[1]:.3g} mm",
-            )
+    if effect.key not in excluded:
+        _append(
+            findings,
+            tester,
+            effect,
+            readings,
+            model,
+            trials,
+            f"along {axis}, period {best[1]:.3g} mm",
         )
 
 
@@ -544,20 +539,15 @@ def _search_local(
         if best is None:
             continue
         effect = LocalDefect(axis, direction, float(best[1]), float(best[2]))
-        if effect.key in excluded:
-            continue
-        f, p, detect, beta = tester.test(effect.design(readings, model))
-        if detect > 0.0:
-            findings.append(
-                Finding(
-                    effect,
-                    f,
-                    _corrected(p, trials),
-                    trials,
-                    effect.magnitude_um(beta),
-                    detect,
-                    f"{axis} at {best[1]:.0f} mm, width {best[2]:.0f} mm, in {direction}",
-                )
+        if effect.key not in excluded:
+            _append(
+                findings,
+                tester,
+                effect,
+                readings,
+                model,
+                trials,
+                f"{axis} at {best[1]:.0f} mm, width {best[2]:.0f} mm, in {direction}",
             )
 
 
@@ -574,19 +564,19 @@ def unexplained(
     """Lines whose run-averaged residual is larger than their repeatability allows.
 
     For each line and target the mean residual over runs is compared with σ/√runs (χ² test over
-    the targets, Bonferroni over the lines); a significant line is reported with where its
-    largest systematic residual sits and how large it is. With a cross-validation, its held-out
-    residuals are used: a structure on one line is then sized as that line shows it, not as
-    what is left after the fit partly bent the model towards it.
+    the targets, Bonferroni over the lines) on the fit's residual; a significant line is reported
+    with where its largest systematic residual sits and how large it is. With a cross-validation,
+    the place and size come from its held-out residuals: a structure on one line is then sized as
+    that line shows it, not as what is left after the fit bent the model partly towards it.
     """
     readings = identification.readings
-    residual = identification.residual if cross_validation is None else cross_validation.residual
+    held_out = identification.residual if cross_validation is None else cross_validation.residual
     out = []
     count = len(readings.lines)
     for index, line in enumerate(readings.lines):
         mask = readings.line == index
         targets = readings.target[mask]
-        r = residual[mask]
+        r = identification.residual[mask]
         sigma = float(readings.sigma[mask][0])
         k = int(targets.max()) + 1
         sums = np.bincount(targets, weights=r, minlength=k)
@@ -599,6 +589,9 @@ def unexplained(
         p = float(stats.chi2.sf(chi2, int(valid.sum()))) * count
         if p >= alpha:
             continue
+        # place and size from the held-out residual (the same as the fit's without one)
+        sums = np.bincount(targets, weights=held_out[mask], minlength=k)
+        means = sums[valid] / n[valid]
         worst = int(np.argmax(np.abs(means)))
         position = float(line.data.targets_mm[np.flatnonzero(valid)[worst]])
         unit = "µrad" if line.spec.quantity == "angular" else "µm"
