@@ -14,7 +14,7 @@ identification stays linear in its coefficients.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -54,10 +54,6 @@ class ErrorInfo:
     paper: str  # the paper's symbol, for display
     paper_sign: int  # value in the paper's symbol = paper_sign * ISO value
     description: str
-
-    @property
-    def is_translation(self) -> bool:
-        return self.unit == "um"
 
     @property
     def is_straightness(self) -> bool:
@@ -509,7 +505,3 @@ class ErrorModel:
         low, high = self.machine.stroke(axis)
         q = np.linspace(low, high, count)
         return q, self.functions[eid](q)
-
-
-def ids_for_axes(axes: Iterable[str]) -> list[str]:
-    return [i for a in axes for i in axis_error_ids(a)]

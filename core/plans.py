@@ -11,7 +11,7 @@ distances from the start. ``reflector`` is the optics position relative to the s
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -312,7 +312,3 @@ def layout(
         raise ValueError(
             f"unknown plan layout {name!r}; choose one of {', '.join(LAYOUTS)}"
         ) from None
-
-
-def names(lines: Sequence[PlannedLine]) -> list[str]:
-    return [line.spec.name for line in lines]

@@ -58,12 +58,6 @@ class Readings:
     def is_angular(self) -> NDArray[np.bool_]:
         return self.quantity == QUANTITY_CODE["angular"]
 
-    def subset(self, mask: NDArray[np.bool_]) -> Readings:
-        return Readings(
-            self.lines,
-            *(getattr(self, name)[mask] for name in _ARRAY_FIELDS),
-        )
-
     def line_mask(self, index: int) -> NDArray[np.bool_]:
         return self.line == index
 
