@@ -1,4 +1,4 @@
-"""Starting the workbench: ``volucal gui [PROJECT.h5]`` (core/commands/gui_cmd.py) calls
+"""Starting the workbench: ``volucal gui [PROJECT.h5]`` (app/commands/gui_cmd.py) calls
 :func:`run`."""
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """The ``volucal`` command.
 
 Each sub-command lives in its own module in ``volucal.core.commands`` and exposes
-``register(subparsers)``; this module finds them, parses the arguments and turns every
+``register(subparsers)``; other packages add theirs through the ``volucal.commands`` entry point
+group (the workbench's ``gui`` and ``report``). This module finds them, parses the arguments and
+turns every
 :class:`volucal.core.userror.UserError` into one clear message on stderr with a non-zero exit
 code (``--debug`` shows the traceback).
 """
@@ -13,6 +15,7 @@ import importlib
 import pkgutil
 import sys
 from collections.abc import Sequence
+from importlib import metadata
 
 from . import commands
 from .userror import UserError
@@ -32,9 +35,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"volucal {__version__}")
     parser.add_argument("--debug", action="store_true", help="show a traceback on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    modules = sorted(m.name for m in pkgutil.iter_modules(commands.__path__))
-    for name in modules:
-        module = importlib.import_module(f"{commands.__name__}.{name}")
+    modules = [
+        importlib.import_module(f"{commands.__name__}.{m.name}")
+        for m in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name)
+    ]
+    for entry in sorted(metadata.entry_points(group="volucal.commands"), key=lambda e: e.name):
+        try:
+            modules.append(entry.load())
+        except ImportError:
+            # an extension whose package is not installed here: its commands are not offered
+            continue
+    for module in modules:
         module.register(sub)
     return parser
 

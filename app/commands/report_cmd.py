@@ -14,9 +14,9 @@ import os
 import sys
 from pathlib import Path
 
-from ..calibrate import _jsonable
-from ..conformance import QUANTITIES
-from ..userror import UserError
+from volucal.core.calibrate import _jsonable
+from volucal.core.conformance import QUANTITIES
+from volucal.core.userror import UserError
 
 QT_MISSING = "the PDF report is written with Qt: install the gui extra (pip install 'volucal[gui]')"
 

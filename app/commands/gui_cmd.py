@@ -11,7 +11,7 @@ import importlib.util
 import os
 from pathlib import Path
 
-from ..userror import UserError
+from volucal.core.userror import UserError
 
 GUI_EXTRA = "the GUI needs the gui extra: pip install 'volucal[gui]'"
 

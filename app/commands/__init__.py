@@ -1,0 +1,7 @@
+"""Commands the workbench adds to the ``volucal`` CLI (``gui``, ``report``).
+
+They are registered through the ``volucal.commands`` entry point group (pyproject.toml), so the
+core's CLI finds them without ever importing the GUI package by name. The modules import only
+argparse and the core at module level; Qt is imported inside the handlers, and a core-only
+install gets a clear message instead.
+"""
