@@ -7,17 +7,18 @@ or pyqtgraph is a message, not a traceback.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import os
 from pathlib import Path
 
 from volucal.core.userror import UserError
 
+from . import installed
+
 GUI_EXTRA = "the GUI needs the gui extra: pip install 'volucal[gui]'"
 
 
 def handle(args: argparse.Namespace) -> int:
-    if any(importlib.util.find_spec(name) is None for name in ("PySide6", "pyqtgraph")):
+    if not all(installed(name) for name in ("PySide6", "pyqtgraph")):
         raise UserError(GUI_EXTRA)
     project: Path | None = args.project
     if project is not None and not project.is_file():

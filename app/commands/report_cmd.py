@@ -8,7 +8,6 @@ Without a display Qt runs on its offscreen platform.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
 import sys
@@ -18,11 +17,13 @@ from volucal.core.calibrate import _jsonable
 from volucal.core.conformance import QUANTITIES
 from volucal.core.userror import UserError
 
+from . import installed
+
 QT_MISSING = "the PDF report is written with Qt: install the gui extra (pip install 'volucal[gui]')"
 
 
 def handle(args: argparse.Namespace) -> int:
-    if importlib.util.find_spec("PySide6") is None:
+    if not installed("PySide6"):
         raise UserError(QT_MISSING)
     if args.tolerance_um is not None and not args.tolerance_um > 0:
         raise UserError(f"--tolerance-um {args.tolerance_um}: give a positive number of µm")
