@@ -137,10 +137,7 @@ class CompensationView(View):
         self.export_button = QPushButton("Export…")
         self.export_button.setObjectName("exportButton")
         self.export_button.clicked.connect(self.choose_and_export)
-        self.cancel_button = QPushButton("Cancel")
-        self.cancel_button.setEnabled(False)
-        self.cancel_button.clicked.connect(self.runner.cancel_all)
-        self.runner.busyChanged.connect(self._busy)
+        self.cancel_button = self.cancel_control(self._busy)
         buttons = QHBoxLayout()
         buttons.addWidget(self.preview_button)
         buttons.addWidget(self.export_button)
@@ -344,7 +341,6 @@ class CompensationView(View):
     def _busy(self, busy: bool) -> None:
         self.preview_button.setEnabled(not busy)
         self.export_button.setEnabled(not busy)
-        self.cancel_button.setEnabled(busy)
 
     # ---- showing -------------------------------------------------------------------------------
 

@@ -59,10 +59,7 @@ class IdentificationView(View):
         self.run_button.setObjectName("identifyButton")
         self.run_button.setToolTip("identify the 21 errors from the project's lines (F5)")
         self.run_button.clicked.connect(self.run)
-        self.cancel_button = QPushButton("Cancel")
-        self.cancel_button.setEnabled(False)
-        self.cancel_button.clicked.connect(self.runner.cancel_all)
-        self.runner.busyChanged.connect(self._busy)
+        self.cancel_button = self.cancel_control(self._busy)
         self.summary = QLabel()
         self.summary.setObjectName("identificationSummary")
         top = QHBoxLayout()
@@ -153,7 +150,6 @@ class IdentificationView(View):
 
     def _busy(self, busy: bool) -> None:
         self.run_button.setEnabled(not busy)
-        self.cancel_button.setEnabled(busy)
 
     # ---- showing ---------------------------------------------------------------------------
 

@@ -76,10 +76,7 @@ class LoopView(View):
         self.run_button = QPushButton("Close the loop")
         self.run_button.setObjectName("runLoopButton")
         self.run_button.clicked.connect(self.run)
-        self.cancel_button = QPushButton("Cancel")
-        self.cancel_button.setEnabled(False)
-        self.cancel_button.clicked.connect(self.runner.cancel_all)
-        self.runner.busyChanged.connect(self._busy)
+        self.cancel_button = self.cancel_control(self._busy)
         self.summary = QLabel()
         self.summary.setObjectName("loopSummary")
         top = QHBoxLayout()
@@ -268,7 +265,6 @@ class LoopView(View):
 
     def _busy(self, busy: bool) -> None:
         self.run_button.setEnabled(not busy)
-        self.cancel_button.setEnabled(busy)
         self.refit_button.setEnabled(not busy and self._can_refit())
 
     def _can_refit(self) -> bool:

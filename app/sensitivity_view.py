@@ -96,10 +96,7 @@ class SensitivityView(View):
         self.run_button = QPushButton("Run")
         self.run_button.setObjectName("runSensitivityButton")
         self.run_button.clicked.connect(self.run)
-        self.cancel_button = QPushButton("Cancel")
-        self.cancel_button.setEnabled(False)
-        self.cancel_button.clicked.connect(self.runner.cancel_all)
-        self.runner.busyChanged.connect(self._busy)
+        self.cancel_button = self.cancel_control(self._busy)
         self.status = QLabel()
         self.status.setObjectName("sensitivityStatus")
         top = QHBoxLayout()
@@ -375,7 +372,6 @@ class SensitivityView(View):
     def _busy(self, busy: bool) -> None:
         self.run_button.setEnabled(not busy)
         self.map_button.setEnabled(not busy)
-        self.cancel_button.setEnabled(busy)
 
     # ---- showing -------------------------------------------------------------------------------
 

@@ -6,7 +6,7 @@ from collections.abc import Callable
 from typing import Any
 
 from PySide6.QtGui import QCloseEvent, QShowEvent
-from PySide6.QtWidgets import QWidget
+from PySide6.QtWidgets import QPushButton, QWidget
 from volucal.core.userror import UserError
 
 from .dialogs import show_bug, show_error
@@ -68,6 +68,16 @@ class View(QWidget):
         """Show the item ``name`` (a line, a result); the default view has one subject."""
 
     # ---- tasks -------------------------------------------------------------------------------
+
+    def cancel_control(self, on_busy: Callable[[bool], object]) -> QPushButton:
+        """The view's Cancel button (enabled while its runner is busy); ``on_busy`` also hears
+        the runner's busy state, to disable the view's own action buttons meanwhile."""
+        cancel = QPushButton("Cancel")
+        cancel.setEnabled(False)
+        cancel.clicked.connect(self.runner.cancel_all)
+        self.runner.busyChanged.connect(cancel.setEnabled)
+        self.runner.busyChanged.connect(on_busy)
+        return cancel
 
     def run_task(self, title: str, call: CoreCall, on_success: Callable[[Any], object],
                  on_cancel: Callable[[], object] | None = None) -> Task:

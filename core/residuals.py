@@ -37,7 +37,7 @@ from .effects import (
     Reversal,
     ThermalDrift,
 )
-from .errors import AXIS_ERROR_IDS
+from .errors import AXIS_ERROR_IDS, ErrorModel
 from .identify import (
     CrossValidation,
     Identification,
@@ -341,8 +341,7 @@ def diagnose(
     excluded = set(exclude)
 
     def add(effect: Effect) -> None:
-        if effect.key not in excluded:
-            _append(findings, tester, effect, readings, model)
+        _append(findings, tester, effect, readings, model, excluded)
 
     moving = _moving_axes(readings)
     step = _typical_step(readings)
@@ -382,16 +381,16 @@ def diagnose(
                 drifts = [ThermalDrift(axis, "time", tau, ref) for tau in taus]
                 scores = [tester.test(d.design(readings, model))[0] for d in drifts]
                 best_drift = drifts[int(np.argmax(scores))]
-                if best_drift.key not in excluded:
-                    _append(
-                        findings,
-                        tester,
-                        best_drift,
-                        readings,
-                        model,
-                        len(taus),
-                        "all lines along " + axis,
-                    )
+                _append(
+                    findings,
+                    tester,
+                    best_drift,
+                    readings,
+                    model,
+                    excluded,
+                    len(taus),
+                    "all lines along " + axis,
+                )
         _search_local(tester, readings, model, axis, findings, excluded)
     for direction in AXES:
         for along in AXES:
@@ -426,12 +425,16 @@ def _append(
     tester: _Tester,
     effect: Effect,
     readings: Readings,
-    model: object,
+    model: ErrorModel,
+    excluded: set[tuple[str, str | None, str]],
     trials: int = 1,
     where: str | None = None,
 ) -> None:
-    """Test one candidate and keep it as a finding when the model cannot absorb it all."""
-    columns = effect.design(readings, model)  # type: ignore[arg-type]
+    """Test one candidate (unless already kept or rejected) and keep it as a finding when the
+    model cannot absorb it all."""
+    if effect.key in excluded:
+        return
+    columns = effect.design(readings, model)
     if not np.any(columns):
         return
     f, log10_p, detect, beta = tester.test(columns)
@@ -466,13 +469,13 @@ def _typical_step(readings: Readings) -> dict[str, float]:
 def _search_period(
     tester: _Tester,
     readings: Readings,
-    model,
+    model: ErrorModel,
     axis: str,
     ref: float,
-    step: float,  # type: ignore[no-untyped-def]
+    step: float,
     span: float,
     findings: list[Finding],
-    excluded: set,  # type: ignore[type-arg]
+    excluded: set[tuple[str, str | None, str]],
 ) -> None:
     """Least-squares periodogram along an axis: periods from twice the step (or 2 mm) to a
     quarter of the stroke; the best one is a finding with its false-alarm level."""
@@ -496,25 +499,25 @@ def _search_period(
     # independent frequencies over the band: span/shortest − span/longest
     trials = max(1, int(span / shortest - span / longest))
     effect = Cyclic(axis, float(best[1]), (1,), ref)
-    if effect.key not in excluded:
-        _append(
-            findings,
-            tester,
-            effect,
-            readings,
-            model,
-            trials,
-            f"along {axis}, period {best[1]:.3g} mm",
-        )
+    _append(
+        findings,
+        tester,
+        effect,
+        readings,
+        model,
+        excluded,
+        trials,
+        f"along {axis}, period {best[1]:.3g} mm",
+    )
 
 
 def _search_local(
     tester: _Tester,
     readings: Readings,
-    model,
-    axis: str,  # type: ignore[no-untyped-def]
+    model: ErrorModel,
+    axis: str,
     findings: list[Finding],
-    excluded: set,  # type: ignore[type-arg]
+    excluded: set[tuple[str, str | None, str]],
 ) -> None:
     """A scan of Gaussian bumps along an axis, in each direction, at several widths."""
     machine = model.machine
@@ -539,16 +542,16 @@ def _search_local(
         if best is None:
             continue
         effect = LocalDefect(axis, direction, float(best[1]), float(best[2]))
-        if effect.key not in excluded:
-            _append(
-                findings,
-                tester,
-                effect,
-                readings,
-                model,
-                trials,
-                f"{axis} at {best[1]:.0f} mm, width {best[2]:.0f} mm, in {direction}",
-            )
+        _append(
+            findings,
+            tester,
+            effect,
+            readings,
+            model,
+            excluded,
+            trials,
+            f"{axis} at {best[1]:.0f} mm, width {best[2]:.0f} mm, in {direction}",
+        )
 
 
 # --------------------------------------------------------------------------------------------
