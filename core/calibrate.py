@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .effects import Effect, refined_model
+from .effects import Effect, HigherOrder, refined_model
+from .errors import ErrorModel
 from .identify import Identification, UncertaintyBudget, parameters_report
 from .kinematics import VolumetricModel
 from .machine import Machine
@@ -58,6 +59,51 @@ class LoopSource:
         for effect, values in self.effects:
             e = e + effect.error_um(values, self.machine, q, a)
         return e
+
+
+def refined_covariance(identification: Identification, refined: ErrorModel) -> FloatArray:
+    """Covariance of ``refined`` (the model with its higher-order refinements folded in, from
+    :func:`~volucal.core.effects.refined_model`) over its own parameters.
+
+    A refined function is a node table whose values are the coarse function plus the refinement
+    at the nodes; both are linear in the fitted unknowns, so the covariance propagates exactly
+    (cross terms included) from the fit's covariance of all its unknowns.
+    """
+    from .errors import AXIS_ERROR_IDS, SQUARENESS_IDS, NodeTableBasis
+    from .identify import Gauge
+
+    base = identification.model
+    if refined.parameter_count == base.parameter_count:
+        return identification.covariance
+    gauge = Gauge.for_model(base)
+    system = identification.system
+    covariance_all = identification.normal_inverse * identification.sigma_scale**2
+    refinements = {
+        effect.error_id: (effect, block.columns)
+        for effect, block in zip(
+            identification.effects,
+            [b for b in system.blocks if b.kind == "effect"],
+            strict=True,
+        )
+        if isinstance(effect, HigherOrder)
+    }
+    base_slices = base.parameter_slices
+    rows = []
+    for eid in (*AXIS_ERROR_IDS, *SQUARENESS_IDS):
+        to_base = np.zeros((base_slices[eid].stop - base_slices[eid].start, system.size))
+        to_base[:, : gauge.size] = gauge.matrix[base_slices[eid]]
+        if eid not in refinements:
+            rows.append(to_base)
+            continue
+        effect, columns = refinements[eid]
+        table = refined.functions[eid].basis
+        assert isinstance(table, NodeTableBasis)
+        nodes = np.asarray(table.nodes_mm)
+        rows_eid = base.functions[eid].basis.design(nodes) @ to_base
+        rows_eid[:, columns] += effect.refinement_design(nodes)
+        rows.append(rows_eid)
+    mapping = np.vstack(rows)
+    return np.asarray(mapping @ covariance_all @ mapping.T)
 
 
 def measured_range(identification: Identification) -> dict[str, tuple[float, float]]:
@@ -145,7 +191,7 @@ def calibrate(
         report(progress, 0.72, "global sensitivity (EFAST)")
         sensitivity_result = analyse_model(
             source.model,
-            final.covariance,
+            refined_covariance(final, source.model),
             n=request.sensitivity_n,
             seed=0,
             map_step_mm=100.0,

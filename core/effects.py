@@ -13,6 +13,7 @@ higher_order, local. Units: µm for displacements, mm for positions, s for time,
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,6 +35,28 @@ def _displacement(readings: Readings, direction: int) -> FloatArray:
     return out
 
 
+@dataclass(frozen=True)
+class Plausibility:
+    """What a real set-up or machine can show: a fitted effect beyond these explains nothing.
+
+    A set-up effect is an unknown of the measurement (where the optics really sat, how the beam was
+    aligned); a fit that needs an optics mount a third of a metre from where the plan puts it, or a
+    beam so far off that no return spot reaches the detector, has found structure the catalogue
+    lacks, not a set-up error. Machine effects get generous bounds against numerical blow-ups.
+    """
+
+    abbe_offset_mm: float = 100.0  # undeclared displacement of the optics from the plan
+    cosine_angle_urad: float = 5000.0  # beyond ~5 mrad the return beam leaves the detector
+    reversal_um: float = 200.0
+    amplitude_um: float = 50.0  # cyclic, local, cross-axis peak
+    thermal_scale_ppm: float = 300.0  # time-driven scale reached for t ≫ τ
+    expansion_ppm_per_c: tuple[float, float] = (-5.0, 40.0)  # steel 11.5, cast iron 10, Al 23
+    time_constant_s: tuple[float, float] = (300.0, 7 * 86400.0)
+    #: A positive cosine scale (a beam that reads *longer* than the travel) is impossible; allow
+    #: this many standard deviations of it before calling it implausible.
+    sign_sigmas: float = 3.0
+
+
 @dataclass(frozen=True, eq=False)
 class Effect:
     """Base class: one effect with a linear design over the readings."""
@@ -51,6 +74,12 @@ class Effect:
         return (self.kind, self.axis, self.label)
 
     @property
+    def searched(self) -> int:
+        """How many of its quantities were searched for in the data (a period, a time constant,
+        a place and a width) rather than given: they count against it as parameters do."""
+        return 0
+
+    @property
     def label(self) -> str:
         raise NotImplementedError
 
@@ -64,6 +93,12 @@ class Effect:
     def magnitude_um(self, values: FloatArray) -> float:
         """Peak size of the effect on the volumetric error (µm), for reports."""
         raise NotImplementedError
+
+    def implausible(
+        self, values: FloatArray, covariance: FloatArray, limits: Plausibility
+    ) -> str | None:
+        """Why the fitted parameters cannot be real for this set-up, or None when they can."""
+        return None
 
     def error_um(
         self,
@@ -125,6 +160,14 @@ class Reversal(Effect):
     def magnitude_um(self, values: FloatArray) -> float:
         return float(abs(values[0]) + (abs(values[1]) if self.order else 0.0))
 
+    def implausible(self, values, covariance, limits):  # type: ignore[no-untyped-def]
+        if self.magnitude_um(values) > limits.reversal_um:
+            return (
+                f"a reversal of {self.magnitude_um(values):.4g} µm is beyond "
+                f"{limits.reversal_um:g} µm"
+            )
+        return None
+
     def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
         q = np.atleast_2d(positions_mm)
         e = np.zeros_like(q, dtype=float)
@@ -152,9 +195,16 @@ class Cyclic(Effect):
     def axis(self) -> str:
         return self.axis_name
 
+    #: the period came from a search of the data, not from the machine's screw lead
+    period_searched: bool = False
+
     @property
     def label(self) -> str:
         return f"cyclic {self.axis_name} {self.period_mm:.4g} mm"
+
+    @property
+    def searched(self) -> int:
+        return 1 if self.period_searched else 0
 
     def _waves(self, q: FloatArray) -> FloatArray:
         cols = []
@@ -186,6 +236,14 @@ class Cyclic(Effect):
         return float(
             sum(np.hypot(values[2 * i], values[2 * i + 1]) for i in range(len(self.harmonics)))
         )
+
+    def implausible(self, values, covariance, limits):  # type: ignore[no-untyped-def]
+        if self.magnitude_um(values) > limits.amplitude_um:
+            return (
+                f"a cycle of {self.magnitude_um(values):.4g} µm is beyond "
+                f"{limits.amplitude_um:g} µm"
+            )
+        return None
 
     def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
         q = np.atleast_2d(positions_mm)
@@ -221,7 +279,16 @@ class ThermalDrift(Effect):
     def label(self) -> str:
         if self.mode == "temperature":
             return f"thermal drift {self.axis_name} (material temperature)"
-        return f"thermal drift {self.axis_name} (τ = {self.time_constant_s / 3600:.3g} h)"
+        return f"thermal drift {self.axis_name} (time)"
+
+    @property
+    def key(self) -> tuple[str, str | None, str]:
+        # τ is estimated, not part of the candidate's identity
+        return (self.kind, self.axis, self.label)
+
+    @property
+    def searched(self) -> int:
+        return 1 if self.mode == "time" else 0
 
     def _driver(self, readings: Readings) -> FloatArray:
         if self.mode == "temperature":
@@ -253,6 +320,25 @@ class ThermalDrift(Effect):
     def magnitude_um(self, values: FloatArray) -> float:
         return float(abs(values[0]) * 0.4)  # over a typical 400 mm at the end of the drift
 
+    def implausible(self, values, covariance, limits):  # type: ignore[no-untyped-def]
+        if self.mode == "temperature":
+            low, high = limits.expansion_ppm_per_c
+            if not low <= values[0] <= high:
+                return (
+                    f"an expansion of {values[0]:.4g} ppm/°C is outside [{low:g}, {high:g}] "
+                    "ppm/°C of machine materials"
+                )
+            return None
+        low, high = limits.time_constant_s
+        if not low <= self.time_constant_s <= high:
+            return (
+                f"a time constant of {self.time_constant_s:.4g} s is outside the "
+                f"[{low:g}, {high:g}] s a machine structure warms with"
+            )
+        if abs(values[0]) > limits.thermal_scale_ppm:
+            return f"a drift of {values[0]:.4g} ppm is beyond {limits.thermal_scale_ppm:g} ppm"
+        return None
+
     def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
         # The model describes the machine at the session's first reading: compensation uses
         # the 21 errors there, and the drift is reported, not compensated.
@@ -261,14 +347,23 @@ class ThermalDrift(Effect):
 
 @dataclass(frozen=True, eq=False)
 class CrossAxis(Effect):
-    """Error along ``direction`` that depends on two axes at once (sag): f(q_along)·(q_across −
-    ref)/stroke, with f a quadratic zero at the reference. A rigid body cannot produce it when
-    the lines that see the coupled rotation disagree."""
+    """Error along ``direction`` that depends on two axes at once (sag, twist of a table, a
+    guideway that bends with the load): a smooth function of both positions,
+
+        f(q_a, q_b) = Σ c_ij · P_i(s) · P_j(t),   i ≥ 1, j ≥ 1, i + j ≤ order,
+
+    with P the Legendre polynomials and s, t the two positions scaled to [−1, 1] over their
+    strokes. Products only: what depends on one axis alone is the error functions' part. The
+    rigid body holds some products too (a roll of X times the Y position is s·t in EZ); the loop's
+    test projects those out, so only what no rigid body produces is evidence. The order is chosen
+    by cross-validation among the candidates (3 and 4 by default).
+    """
 
     direction: str = "Z"
     along: str = "X"
     across: str = "Y"
     machine: Machine | None = None
+    order: int = 4
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kind", "cross_axis")
@@ -279,34 +374,69 @@ class CrossAxis(Effect):
 
     @property
     def label(self) -> str:
-        return f"cross-axis E{self.direction} over {self.along}×{self.across}"
+        return f"cross-axis E{self.direction} over {self.along}×{self.across} (order {self.order})"
+
+    def _terms(self) -> list[tuple[int, int]]:
+        return [
+            (i, j)
+            for total in range(2, self.order + 1)
+            for i in range(1, total)
+            for j in (total - i,)
+        ]
+
+    def _scaled(self, q: FloatArray, axis: str) -> FloatArray:
+        assert self.machine is not None
+        low, high = self.machine.stroke(axis)
+        return (2.0 * q[:, AXIS_INDEX[axis]] - low - high) / (high - low)
 
     def _shape(self, q: FloatArray) -> FloatArray:
-        assert self.machine is not None
-        low, high = self.machine.stroke(self.along)
-        a_low, a_high = self.machine.stroke(self.across)
-        ref_a = self.machine.reference(self.along)
-        ref_b = self.machine.reference(self.across)
-        s = (q[:, AXIS_INDEX[self.along]] - ref_a) / (high - low)
-        t = (q[:, AXIS_INDEX[self.across]] - ref_b) / (a_high - a_low)
-        # s² − s is zero at both ends: the part a rigid roll (∝ s·t) cannot mimic; s·t is
-        # included so that a sag referred to the reference keeps its full shape.
-        return np.stack([(s * s - s) * t * 4.0, s * t], axis=-1)
+        from numpy.polynomial import legendre
+
+        s = self._scaled(q, self.along)
+        t = self._scaled(q, self.across)
+        columns = []
+        for i, j in self._terms():
+            ci = np.zeros(i + 1)
+            ci[i] = 1.0
+            cj = np.zeros(j + 1)
+            cj[j] = 1.0
+            columns.append(legendre.legval(s, ci) * legendre.legval(t, cj))
+        return np.stack(columns, axis=-1)
 
     def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
         k = AXIS_INDEX[self.direction]
         return _displacement(readings, k)[:, None] * self._shape(readings.position_mm)
 
+    def _surface(self, values: FloatArray, count: int = 21) -> FloatArray:
+        assert self.machine is not None
+        a = np.linspace(*self.machine.stroke(self.along), count)
+        b = np.linspace(*self.machine.stroke(self.across), count)
+        q = np.zeros((count * count, 3))
+        aa, bb = np.meshgrid(a, b, indexing="ij")
+        q[:, AXIS_INDEX[self.along]] = aa.ravel()
+        q[:, AXIS_INDEX[self.across]] = bb.ravel()
+        return np.asarray(self._shape(q) @ values)
+
     def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
+        surface = self._surface(values)
         return {
             "depends_on": [self.along, self.across],
-            "mid_sag_um": float(-values[0]),
-            "mid_sag_std_um": _std(covariance),
-            "linear_um": float(values[1]),
+            "order": self.order,
+            "terms": [f"P{i}({self.along})·P{j}({self.across})" for i, j in self._terms()],
+            "coefficients_um": [float(v) for v in values],
+            "coefficients_std_um": [_std(covariance, i) for i in range(len(values))],
+            "peak_um": float(np.max(np.abs(surface))),
+            "rms_um": float(np.sqrt(np.mean(surface**2))),
         }
 
     def magnitude_um(self, values: FloatArray) -> float:
-        return float(abs(values[0]) + abs(values[1]))
+        return float(np.max(np.abs(self._surface(values, 11))))
+
+    def implausible(self, values, covariance, limits):  # type: ignore[no-untyped-def]
+        peak = self.magnitude_um(values)
+        if peak > limits.amplitude_um:
+            return f"a cross-axis error of {peak:.4g} µm is beyond {limits.amplitude_um:g} µm"
+        return None
 
     def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
         q = np.atleast_2d(positions_mm)
@@ -335,6 +465,10 @@ class LocalDefect(Effect):
     def label(self) -> str:
         return f"local defect {self.axis_name} in {self.direction} at {self.center_mm:.0f} mm"
 
+    @property
+    def searched(self) -> int:
+        return 2
+
     def _bump(self, q: FloatArray) -> FloatArray:
         s = (q - self.center_mm) / self.width_mm
         return np.exp(-0.5 * s * s)
@@ -355,6 +489,11 @@ class LocalDefect(Effect):
 
     def magnitude_um(self, values: FloatArray) -> float:
         return float(abs(values[0]))
+
+    def implausible(self, values, covariance, limits):  # type: ignore[no-untyped-def]
+        if abs(values[0]) > limits.amplitude_um:
+            return f"a local defect of {values[0]:.4g} µm is beyond {limits.amplitude_um:g} µm"
+        return None
 
     def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
         q = np.atleast_2d(positions_mm)
@@ -391,22 +530,21 @@ class HigherOrder(Effect):
         the current coarse basis, so the refinement's size is what it adds and nothing else."""
         assert self.machine is not None
         low, high = self.machine.stroke(self.axis)
-        reference = self.machine.reference(self.axis)
-        straightness = ERROR_INFO[self.error_id].is_straightness
-        basis = BSplineBasis.uniform(low, high, self.spacing_mm)
-        fine = gauge_null_space(basis, reference, straightness)
-        coarse_basis = BSplineBasis.uniform(low, high, self.coarse_spacing_mm)
-        coarse = gauge_null_space(coarse_basis, reference, straightness)
-        q = np.linspace(low, high, 801)
-        cross = (coarse_basis.design(q) @ coarse).T @ (basis.design(q) @ fine)
-        _, s, vt = np.linalg.svd(cross, full_matrices=True)
-        rank = int(np.sum(s > 1e-9 * max(s.max(initial=0.0), 1e-300)))
-        return basis, fine @ vt[rank:].T
+        return _refinement_basis(
+            float(low),
+            float(high),
+            float(self.machine.reference(self.axis)),
+            ERROR_INFO[self.error_id].is_straightness,
+            float(self.spacing_mm),
+            float(self.coarse_spacing_mm),
+        )
 
     def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
         basis, null = self._basis()
         k = AXIS_INDEX[self.axis]
-        shape = basis.design(readings.position_mm[:, k]) @ null
+        # evaluated once per distinct position: runs repeat their targets
+        positions, inverse = np.unique(readings.position_mm[:, k], return_inverse=True)
+        shape = (basis.design(positions) @ null)[inverse]
         column = AXIS_ERROR_IDS.index(self.error_id)
         return value_sensitivity(readings, model)[:, column, None] * shape
 
@@ -430,10 +568,39 @@ class HigherOrder(Effect):
         basis, null = self._basis()
         return basis, null @ values
 
+    def refinement_design(self, position_mm: FloatArray) -> FloatArray:
+        """d(added value at the positions)/d(parameters), (n, k)."""
+        basis, null = self._basis()
+        return np.asarray(basis.design(position_mm) @ null)
+
     def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
         # A refinement of an error function: compensation folds it into the model itself
         # (see :func:`refined_model`).
         return np.zeros_like(np.atleast_2d(positions_mm), dtype=float)
+
+
+@functools.lru_cache(maxsize=64)
+def _refinement_basis(
+    low: float,
+    high: float,
+    reference: float,
+    straightness: bool,
+    spacing_mm: float,
+    coarse_spacing_mm: float,
+) -> tuple[BSplineBasis, FloatArray]:
+    """:meth:`HigherOrder._basis`, computed once per stroke and spacing (the loop asks for it
+    at every step)."""
+    basis = BSplineBasis.uniform(low, high, spacing_mm)
+    fine = gauge_null_space(basis, reference, straightness)
+    coarse_basis = BSplineBasis.uniform(low, high, coarse_spacing_mm)
+    coarse = gauge_null_space(coarse_basis, reference, straightness)
+    q = np.linspace(low, high, 801)
+    cross = (coarse_basis.design(q) @ coarse).T @ (basis.design(q) @ fine)
+    _, s, vt = np.linalg.svd(cross, full_matrices=True)
+    rank = int(np.sum(s > 1e-9 * max(s.max(initial=0.0), 1e-300)))
+    null = fine @ vt[rank:].T
+    null.setflags(write=False)
+    return basis, null
 
 
 _SENSITIVITY_CACHE: list[tuple[Readings, ErrorModel, FloatArray]] = []
@@ -469,6 +636,21 @@ def value_sensitivity(readings: Readings, model: ErrorModel) -> FloatArray:
     return result
 
 
+_ROTATION_CACHE: list[tuple[Readings, ErrorModel, FloatArray]] = []
+
+
+def _tool_rotation(readings: Readings, model: ErrorModel) -> FloatArray:
+    """Rotation of the tool (µrad, (n, 3)) at every reading, kept for the last (readings, model)
+    pair: the loop asks for it once per line while diagnosing one fit."""
+    for cached_readings, cached_model, value in _ROTATION_CACHE:
+        if cached_readings is readings and cached_model is model:
+            return value
+    positions, inverse = np.unique(readings.position_mm, axis=0, return_inverse=True)
+    result = rotation_error(model, positions)[inverse.reshape(-1)]
+    _ROTATION_CACHE[:] = [(readings, model, result)]
+    return result
+
+
 # --------------------------------------------------------------------------------------------
 # Set-up effects
 # --------------------------------------------------------------------------------------------
@@ -495,7 +677,7 @@ class AbbeOffset(Effect):
         mask = (readings.line == self.line) & ~readings.is_angular
         if not mask.any():
             return out
-        theta = rotation_error(model, readings.position_mm[mask]) * 1e-6  # rad
+        theta = _tool_rotation(readings, model)[mask] * 1e-6  # rad
         for j in range(3):
             unit = np.zeros(3)
             unit[j] = 1.0
@@ -512,6 +694,15 @@ class AbbeOffset(Effect):
 
     def magnitude_um(self, values: FloatArray) -> float:
         return float(np.linalg.norm(values) * 1e-2)  # 10 µrad over the offset
+
+    def implausible(self, values, covariance, limits):  # type: ignore[no-untyped-def]
+        worst = float(np.max(np.abs(values)))
+        if worst > limits.abbe_offset_mm:
+            return (
+                f"an optics offset of {worst:.4g} mm from where the plan puts them is beyond the "
+                f"{limits.abbe_offset_mm:g} mm a set-up can be off"
+            )
+        return None
 
 
 @dataclass(frozen=True, eq=False)
@@ -547,6 +738,21 @@ class Cosine(Effect):
     def magnitude_um(self, values: FloatArray) -> float:
         return float(abs(values[0]) * 0.4)
 
+    def implausible(self, values, covariance, limits):  # type: ignore[no-untyped-def]
+        scale_ppm = float(values[0])
+        if scale_ppm > limits.sign_sigmas * max(_std(covariance), 1e-6):
+            return (
+                f"a cosine error lengthens no reading, but line {self.line_name} reads "
+                f"{scale_ppm:.3g} ppm long"
+            )
+        angle = float(np.sqrt(2 * max(-scale_ppm, 0.0) * 1e-6) * 1e6)
+        if angle > limits.cosine_angle_urad:
+            return (
+                f"a beam misaligned by {angle:.4g} µrad (line {self.line_name}) would not return "
+                f"to the detector (limit {limits.cosine_angle_urad:g} µrad)"
+            )
+        return None
+
 
 def refined_model(
     model: ErrorModel, effects: tuple[Effect, ...], values: tuple[FloatArray, ...]
@@ -573,6 +779,7 @@ KINDS = MACHINE_KINDS + SETUP_KINDS
 
 __all__ = [
     "AXES",
+    "Plausibility",
     "AbbeOffset",
     "Cosine",
     "CrossAxis",

@@ -183,6 +183,7 @@ class Identification:
     iterations: int
     budget: UncertaintyBudget
     system: LinearSystem
+    fitted_rank: int = 0  # independent unknowns fitted (21 errors, nuisances and effects)
 
     def band(
         self, eid: str, position_mm: FloatArray | None = None, count: int = 101
@@ -293,12 +294,29 @@ class _Subspace:
 
     scale: FloatArray
     basis: FloatArray  # (P, rank), orthonormal in scaled coordinates
+    null: FloatArray  # (P, P − rank), the directions the plan cannot see, scaled coordinates
 
     @classmethod
     def of(cls, normal: FloatArray) -> _Subspace:
         _, scale, values, vectors = _scaled_pinv(normal)
         keep = values > RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
-        return cls(scale, vectors[:, keep])
+        return cls(scale, vectors[:, keep], vectors[:, ~keep])
+
+    def attribution(self, columns: NDArray[np.int64]) -> FloatArray | None:
+        """A projection P (P × P) that moves whatever the plan cannot tell apart out of
+        ``columns`` (the effects' unknowns) and into the others (the 21 errors and the lines'
+        nuisances): P·x predicts every reading as x does, and its ``columns`` part is the
+        smallest such. An effect then holds only what no rigid body produces; a roll the plan
+        sees as well as a cross-axis term stays a roll. None when nothing needs moving."""
+        if columns.size == 0 or self.null.shape[1] == 0:
+            return None
+        directions = self.null * self.scale[:, None]  # unscaled null directions
+        part = directions[columns]
+        if not np.any(np.abs(part) > 1e-12 * max(float(np.abs(directions).max()), 1e-300)):
+            return None
+        selector = np.zeros((columns.size, directions.shape[0]))
+        selector[np.arange(columns.size), columns] = 1.0
+        return np.eye(directions.shape[0]) - directions @ np.linalg.pinv(part) @ selector
 
     def _reduced(self, normal: FloatArray) -> tuple[FloatArray, FloatArray]:
         t = self.basis * self.scale[:, None]  # x = t z
@@ -627,14 +645,13 @@ def identifiability(
             messages.append(Unidentifiable((eid, *partners), dims, text))
     redundant: list[str] = []
     if redundancy:
-        scaled = system.normal * scale[:, None] * scale[None, :]
+        lim = RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
         for index, name in enumerate(lines):
             own = system.line_columns(index)
             keep = np.setdiff1d(np.arange(system.size), own)
             m = (system.normal - system.line_normal[index]) * scale[:, None] * scale[None, :]
             m = m[np.ix_(keep, keep)]
             ev = np.linalg.eigvalsh(m)
-            lim = RANK_TOLERANCE * max(np.linalg.eigvalsh(scaled).max(), 1e-300)
             if int(np.sum(ev > lim)) == rank - len(own):
                 redundant.append(name)
     identified = tuple(e for e in ERROR_IDS if e not in unidentified)
@@ -644,6 +661,26 @@ def identifiability(
 # --------------------------------------------------------------------------------------------
 # Identification
 # --------------------------------------------------------------------------------------------
+
+
+def _without_effects(system: LinearSystem) -> LinearSystem:
+    """The system restricted to the 21 errors and the lines' nuisances (effect columns, which
+    come last, left out)."""
+    size = min((b.columns.start for b in system.blocks if b.kind == "effect"), default=system.size)
+    if size == system.size:
+        return system
+    return LinearSystem(
+        [b for b in system.blocks if b.kind != "effect"],
+        system.normal[:size, :size],
+        system.rhs[:size],
+        [m[:size, :size] for m in system.line_normal],
+        [b[:size] for b in system.line_rhs],
+        system.target_design,
+        system.target_of_reading,
+        np.zeros((len(system.target_of_reading), 0)),
+        system.y,
+        system.weights,
+    )
 
 
 def identify(
@@ -676,6 +713,7 @@ def identify(
     subspace: _Subspace | None = None
     rank_info: Identifiability | None = None
     solution = np.zeros(0)
+    attribution: FloatArray | None = None
     max_iterations = options.max_iterations if options.refine else 1
     noise = float(np.median(readings.sigma))
     for iterations in range(1, max_iterations + 1):
@@ -699,10 +737,29 @@ def identify(
                     readings, targets, zero, gauge, effects, pseudo_y, effect_model=current
                 )
             subspace = _Subspace.of(structural.normal)
+            # What the plan sees of the 21 errors is judged without the effects: whatever an
+            # effect shares with a rigid body is attributed to the rigid body (see
+            # _Subspace.attribution), so it does not make an error "undetermined".
             rank_info = identifiability(
-                structural, gauge, [line.name for line in readings.lines], options.redundancy
+                _without_effects(structural),
+                gauge,
+                [line.name for line in readings.lines],
+                options.redundancy,
             )
         solution = subspace.solve(system.normal, system.rhs)
+        if attribution is None:
+            effect_columns = np.concatenate(
+                [
+                    np.arange(b.columns.start, b.columns.stop)
+                    for b in system.blocks
+                    if b.kind == "effect"
+                ]
+                or [np.empty(0, dtype=np.int64)]
+            ).astype(np.int64)
+            attribution = subspace.attribution(effect_columns)
+            if attribution is None:
+                attribution = np.eye(system.size)
+        solution = attribution @ solution
         new_theta = solution[: gauge.size]
         change = _max_value_change(model, gauge, theta, new_theta)
         theta = new_theta
@@ -714,10 +771,12 @@ def identify(
     report(progress, 0.85, "uncertainty")
     design_residual = system.y - _apply(system, solution)
     final_pred = readings.value - design_residual
-    dof = max(len(readings) - rank_info.rank, 1)
+    fitted_rank = int(subspace.basis.shape[1])
+    dof = max(len(readings) - fitted_rank, 1)
     chi2 = float(np.sum(system.weights * design_residual**2))
     sigma_scale = float(np.sqrt(chi2 / dof))
-    normal_inverse = subspace.inverse(system.normal)
+    assert attribution is not None
+    normal_inverse = attribution @ subspace.inverse(system.normal) @ attribution.T
     cov_all = normal_inverse * sigma_scale**2
     g = gauge.size
     covariance = gauge.matrix @ cov_all[:g, :g] @ gauge.matrix.T
@@ -748,6 +807,7 @@ def identify(
         iterations=iterations,
         budget=options.budget,
         system=system,
+        fitted_rank=fitted_rank,
     )
 
 

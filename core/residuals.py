@@ -5,14 +5,32 @@
    against the residual with an F-test of its columns *after* projecting out what the current model
    can already absorb (so an effect the model mimics scores nothing). Searched quantities (the
    period of a cyclic error, the place of a local defect, the time constant of a drift) are
-   scanned and their false-alarm level corrected for the number of trials (Bonferroni).
+   estimated continuously and their false-alarm level corrected for the number of independent
+   trials (Bonferroni).
 3. Trace: each finding names the effect, the axis and its evidence (F, false-alarm level,
    magnitude, where it shows most).
-4. Add: the strongest findings are refitted; one is kept only if the cross-validated error
-   (leave-one-line-out when every line is redundant, held-out blocks of targets otherwise)
-   improves by a clear margin. Repeat until nothing more is found.
-5. Report before/after, the effects kept and rejected, and what is still unexplained — located and
-   sized, never force-fitted.
+4. Add: the strongest findings are refitted. One is kept only when
+   - its parameters are physically plausible for the set-up (:class:`~volucal.core.effects.
+     Plausibility`): an Abbe offset a third of a metre off explains nothing;
+   - the cross-validated error (leave-one-line-out when every line is redundant, held-out blocks
+     of targets otherwise) improves by at least ``margin``;
+   - the held-out data confirm what the fit gained: the drop of the cross-validated mean square
+     is at least ``generalisation`` of the drop of the fitted mean square. A real effect predicts
+     lines it was not fitted to; a flexible term bent towards structure it does not describe
+     (a time-varying scale read as a cross-axis coupling) removes much from the fit and little
+     from held-out lines.
+   Every candidate is scored again at every step against the current model: a real effect that
+   ranked second is tried again once the first is in the model. A candidate refused before is
+   refitted again only once its evidence has grown (``retry_factor``).
+5. Backward pass: each kept effect is removed in turn; an effect whose removal no longer costs
+   ``margin`` of the cross-validated error is dropped (it was superseded by a later one).
+6. Report before/after, the effects kept and refused with the reason, and what is still
+   unexplained — located, sized and decomposed into what it follows (position, approach
+   direction, time), never force-fitted.
+
+Stopping rule: the loop stops when no candidate reaches the family-wise false-alarm level
+``alpha`` (Bonferroni over every trial of a step), or when every proposal of a step is refused.
+Its false-alarm rate on clean machines is measured by ``benchmarks/bench_loop_suite.py``.
 
 Residuals along a line are autocorrelated, so the F-test only proposes; cross-validation decides.
 """
@@ -34,11 +52,13 @@ from .effects import (
     Effect,
     HigherOrder,
     LocalDefect,
+    Plausibility,
     Reversal,
     ThermalDrift,
 )
 from .errors import AXIS_ERROR_IDS, ErrorModel
 from .identify import (
+    BLOCK_MM,
     CrossValidation,
     Identification,
     IdentifyOptions,
@@ -52,6 +72,7 @@ from .progress import CancelToken, ProgressCallback, check, report
 from .readings import Readings, flatten
 
 FloatArray = NDArray[np.float64]
+EffectKey = tuple[str, str | None, str]
 
 
 @dataclass(frozen=True)
@@ -59,14 +80,34 @@ class LoopOptions:
     """Thresholds of the loop.
 
     alpha : family-wise false-alarm level for proposing an effect (Bonferroni over all tests).
-    margin : relative improvement of the cross-validated RMS an effect must bring to be kept.
-    candidates_per_step : how many of the strongest findings are refitted and cross-validated.
+    margin : relative improvement of the cross-validated RMS an effect must bring to be kept
+        (and must still bring in the backward pass to stay).
+    generalisation : share of the fitted mean-square gain the held-out data must confirm.
+    candidates_per_step : how many of the strongest findings are refitted together; the best
+        one that passes is kept.
+    max_refits_per_step : when a batch is refused, further proposals of the same step are tried
+        up to this many refits before the loop stops.
+    retry_factor : a refused candidate is refitted again once its F statistic has grown by this
+        factor (the model around it changed).
+    contender_share : a proposal is refitted in a batch only when the residual sum of squares it
+        would remove is at least this share of the strongest proposal's.
+    tie : candidates whose cross-validated RMS is within this share of the best are equal; the
+        one with fewer parameters is kept.
+    time_constants_s : the range over which a time-driven drift's τ is estimated.
     """
 
     alpha: float = 1e-4
     margin: float = 0.03
+    generalisation: float = 0.5
     candidates_per_step: int = 3
+    max_refits_per_step: int = 6
     max_steps: int = 8
+    retry_factor: float = 2.0
+    contender_share: float = 0.25
+    tie: float = 0.01
+    time_constants_s: tuple[float, float] = (300.0, 7 * 86400.0)
+    cross_axis_orders: tuple[int, ...] = (3, 4)
+    plausibility: Plausibility = field(default_factory=Plausibility)
     identify: IdentifyOptions = field(default_factory=IdentifyOptions)
 
 
@@ -81,6 +122,8 @@ class Finding:
     magnitude_um: float
     detectability: float  # share of the effect's signal the current model cannot absorb
     where: str
+    #: drop of the weighted residual sum of squares (in units of σ²) the effect would bring
+    gain: float = 0.0
 
     def evidence(self) -> dict[str, object]:
         return {
@@ -90,12 +133,16 @@ class Finding:
             "trials": self.trials,
             "magnitude_um": round(self.magnitude_um, 4),
             "detectability": round(self.detectability, 3),
+            "chi2_gain": round(self.gain, 2),
             "where": self.where,
         }
 
 
 @dataclass(frozen=True)
 class Step:
+    """One refit of the loop: a candidate tried (``stage`` "forward") or a kept effect taken out
+    again (``stage`` "backward")."""
+
     step: int
     finding: Finding
     kept: bool
@@ -107,13 +154,28 @@ class Step:
     parameters: dict[str, object]
     per_group_before: dict[str, float]
     per_group_after: dict[str, float]
+    stage: str = "forward"
 
 
 @dataclass(frozen=True)
 class Unexplained:
+    """Structure no effect explains: where, how large, and what it follows.
+
+    ``correlates_with`` holds the shares (0–1) of the line's residual sum of squares that follow
+    the target position (the same in every run), the approach direction, and time (a drift over
+    the runs, as an offset or a scale); the rest is noise.
+    """
+
     where: str
     description: str
     magnitude_um: float
+    correlates_with: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def strongest(self) -> str | None:
+        if not self.correlates_with:
+            return None
+        return max(self.correlates_with, key=lambda k: self.correlates_with[k])
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,6 +205,7 @@ class LoopResult:
                 {
                     "kind": effect.kind,
                     "axis": effect.axis,
+                    "label": effect.label,
                     "parameters": effect.parameters(values, cov),
                 }
             )
@@ -157,6 +220,7 @@ class LoopResult:
             steps.append(
                 {
                     "step": s.step,
+                    "stage": s.stage,
                     "effect": {
                         "kind": effect.kind,
                         "axis": effect.axis,
@@ -188,7 +252,13 @@ class LoopResult:
                 "method": self.cv_after.method,
             },
             "unexplained": [
-                {"where": u.where, "description": u.description, "magnitude_um": u.magnitude_um}
+                {
+                    "where": u.where,
+                    "description": u.description,
+                    "magnitude_um": u.magnitude_um,
+                    "correlates_with": dict(u.correlates_with),
+                    "strongest": u.strongest,
+                }
                 for u in self.unexplained
             ],
             "warnings": list(self.warnings),
@@ -241,12 +311,15 @@ class _Tester:
         self.to_targets = sparse.csr_matrix(
             (np.ones(n), (system.target_of_reading, np.arange(n))), shape=(n_targets, n)
         )
-        dof = max(len(self.r) - identification.identifiability.rank, 1)
+        dof = max(len(self.r) - identification.fitted_rank, 1)
         self.dof = dof
         self.sigma2 = float(np.sum(self.w * self.r**2) / dof)
 
     def test(self, columns: FloatArray) -> tuple[float, float, float, FloatArray]:
         """(F, log10 false-alarm probability, detectability, parameters) of candidate columns.
+
+        F·k (k the columns' independent dimensions, :attr:`last_dimensions`) is the drop of the
+        weighted residual sum of squares, in units of σ², that adding them would bring.
 
         The columns are projected onto what the current model cannot absorb (S = DᵀWD −
         DᵀWA·(AᵀWA)⁺·AᵀWD); columns it absorbs entirely (e.g. the rigid part of a cross-axis
@@ -254,24 +327,39 @@ class _Tester:
         """
         d = np.atleast_2d(columns.T).T
         system = self.system
-        wd = d * self.w[:, None]
-        agg = self.to_targets @ wd
-        atwd = np.vstack([system.target_design.T @ agg, system.effect_design.T @ wd])
-        dtwd = d.T @ wd
+        # set-up effects act on one line: work on the readings they touch only
+        rows = np.flatnonzero(np.any(d != 0.0, axis=1))
+        if rows.size > 0.5 * len(d):
+            rows = slice(None)  # type: ignore[assignment]
+        d_rows = d[rows]
+        wd = d_rows * self.w[rows, None]
+        if isinstance(rows, slice):
+            agg = self.to_targets @ wd
+            target_part = system.target_design.T @ agg
+        else:
+            touched, local = np.unique(system.target_of_reading[rows], return_inverse=True)
+            agg = np.stack(
+                [np.bincount(local, weights=c, minlength=touched.size) for c in wd.T], axis=-1
+            )
+            target_part = system.target_design[touched].T @ agg
+        atwd = np.vstack([target_part, system.effect_design[rows].T @ wd])
+        dtwd = d_rows.T @ wd
         s = dtwd - atwd.T @ self.ident.normal_inverse @ atwd
         diag = np.diag(dtwd)
         share = np.where(diag > 0, np.diag(s) / np.where(diag > 0, diag, 1.0), 0.0)
         useful = share > 1e-4
         beta = np.zeros(d.shape[1])
+        self.last_dimensions = 0
         if not useful.any():
             return 0.0, 0.0, 0.0, beta
         detect = float(np.min(share[useful]))
         values, vectors = np.linalg.eigh(s[np.ix_(useful, useful)])
         keep = values > 1e-9 * max(values.max(initial=0.0), 1e-300)
         k = int(keep.sum())
+        self.last_dimensions = k
         if k == 0:
             return 0.0, 0.0, detect, beta
-        proj = vectors[:, keep].T @ (d.T @ self.wr)[useful]
+        proj = vectors[:, keep].T @ (d_rows.T @ self.wr[rows])[useful]
         delta = float(np.sum(proj**2 / values[keep]))
         beta[useful] = vectors[:, keep] @ (proj / values[keep])
         f_stat = (delta / k) / self.sigma2
@@ -291,6 +379,33 @@ class _Tester:
         g = d.T @ self.wr
         dtwd = np.einsum("ni,n,ni->i", d, self.w, d)
         return float(np.sum(g**2 / np.maximum(dtwd, 1e-300)) / self.sigma2)
+
+    def target_sums(self, direction: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Per target: its position (T, 3), Σ w·r·p and Σ w·p² over its readings, with p what a
+        unit error along ``direction`` moves the reading (0 for angular readings).
+
+        Screening columns that are p times a function of the position only are then scored on
+        the targets (a few thousand) instead of the readings (tens of thousands).
+        """
+        cache = self.__dict__.setdefault("_target_sums", {})
+        if direction not in cache:
+            readings = self.ident.readings
+            p = readings.projection[:, direction] * ~readings.is_angular
+            first = np.unique(self.system.target_of_reading, return_index=True)[1]
+            cache[direction] = (
+                readings.position_mm[first],
+                self.to_targets @ (self.wr * p),
+                self.to_targets @ (self.w * p * p),
+            )
+        return cache[direction]
+
+    def score_on_targets(self, direction: int, shapes: FloatArray) -> FloatArray:
+        """:meth:`score` of many single-shape candidates at once: ``shapes`` (T, m) holds the
+        function of each candidate at every target; returns m scores."""
+        _, wrp, wpp = self.target_sums(direction)
+        g = shapes.T @ wrp
+        dtwd = (shapes * shapes).T @ wpp
+        return np.asarray(g**2 / np.maximum(dtwd, 1e-300) / self.sigma2)
 
 
 # --------------------------------------------------------------------------------------------
@@ -326,23 +441,58 @@ def _where(readings: Readings, columns: FloatArray, beta: FloatArray) -> str:
     return f"line {line.name} at {readings.target_mm[i]:.1f} mm"
 
 
+@dataclass
+class _Diagnosis:
+    """What one diagnosis step collects."""
+
+    tester: _Tester
+    readings: Readings
+    model: ErrorModel
+    excluded: set[EffectKey]
+    findings: list[Finding] = field(default_factory=list)
+
+    def add(self, effect: Effect, trials: int = 1, where: str | None = None) -> Finding | None:
+        """Test one candidate (unless already kept) and keep it as a finding when the model
+        cannot absorb it all."""
+        if effect.key in self.excluded:
+            return None
+        columns = effect.design(self.readings, self.model)
+        if not np.any(columns):
+            return None
+        f, log10_p, detect, beta = self.tester.test(columns)
+        if detect <= 0.0:
+            return None
+        place = where if where is not None else _where(self.readings, columns, beta)
+        finding = Finding(
+            effect,
+            f,
+            _corrected(log10_p, trials),
+            trials,
+            effect.magnitude_um(beta),
+            detect,
+            place,
+            f * self.tester.last_dimensions,
+        )
+        self.findings.append(finding)
+        return finding
+
+
 def diagnose(
     identification: Identification,
-    exclude: Sequence[tuple[str, str | None, str]] = (),
+    exclude: Sequence[EffectKey] = (),
+    options: LoopOptions | None = None,
 ) -> tuple[list[Finding], list[str]]:
-    """Test every effect the plan could reveal; return findings (strongest first) and warnings."""
+    """Test every effect the plan could reveal; return findings (strongest first) and warnings.
+
+    ``exclude`` holds the keys of effects already in the model.
+    """
+    options = options or LoopOptions()
     readings = identification.readings
     model = identification.model
     machine = model.machine
-    tester = _Tester(identification)
-    findings: list[Finding] = []
+    diagnosis = _Diagnosis(_Tester(identification), readings, model, set(exclude))
     warnings: list[str] = []
     excluded_kind_axis = {(k, a) for k, a, _ in exclude}
-    excluded = set(exclude)
-
-    def add(effect: Effect) -> None:
-        _append(findings, tester, effect, readings, model, excluded)
-
     moving = _moving_axes(readings)
     step = _typical_step(readings)
     for axis in AXES:
@@ -351,66 +501,29 @@ def diagnose(
         moves = any(abs(line.spec.direction[AXIS_INDEX[axis]]) > 1e-6 for line in readings.lines)
         if not moves:
             continue
-        if moving[axis] and ("reversal", axis) not in excluded_kind_axis:
-            add(Reversal(axis, 0, (low, high)))
-        elif moving[axis]:
-            add(Reversal(axis, 1, (low, high)))
-        if ("cyclic", axis) not in excluded_kind_axis:
-            lead = machine.screw_lead_mm.get(axis)
-            if lead:
-                effect = Cyclic(axis, lead, (1, 2), ref)
-                columns = effect.design(readings, model)
-                _, _, detect, _ = tester.test(columns)
-                if detect < 0.2:
-                    warnings.append(
-                        f"the targets of the lines along {axis} (about every {step[axis]:.3g} mm) "
-                        f"cannot reveal a cyclic error at the {lead:g} mm screw lead: it is "
-                        "aliased into the smooth error functions; use steps of 1–3 mm over a "
-                        "few leads or irregular target spacing"
-                    )
-                add(effect)
-            _search_period(
-                tester, readings, model, axis, ref, step[axis], high - low, findings, excluded
-            )
-        if ("thermal_drift", axis) not in excluded_kind_axis:
-            temp = readings.material_temp_c
-            if np.all(np.isfinite(temp)) and np.ptp(temp) > 0.05:
-                add(ThermalDrift(axis, "temperature", reference_mm=ref))
-            else:
-                taus = [1800.0, 3600.0, 7200.0, 14400.0, 28800.0, 57600.0]
-                drifts = [ThermalDrift(axis, "time", tau, ref) for tau in taus]
-                scores = [tester.test(d.design(readings, model))[0] for d in drifts]
-                best_drift = drifts[int(np.argmax(scores))]
-                _append(
-                    findings,
-                    tester,
-                    best_drift,
-                    readings,
-                    model,
-                    excluded,
-                    len(taus),
-                    "all lines along " + axis,
-                )
-        _search_local(tester, readings, model, axis, findings, excluded)
+        if moving[axis]:
+            order = 1 if ("reversal", axis) in excluded_kind_axis else 0
+            diagnosis.add(Reversal(axis, order, (low, high)))
+        warnings += _cyclic_candidates(diagnosis, axis, ref, step[axis], high - low)
+        _thermal_candidates(diagnosis, axis, ref, options.time_constants_s)
+        _search_local(diagnosis, axis)
     for direction in AXES:
-        for along in AXES:
-            for across in AXES:
-                if len({direction, along, across}) < 2 or along == across:
-                    continue
-                if ("cross_axis", direction) in excluded_kind_axis:
-                    continue
-                add(CrossAxis(direction, along, across, machine))
+        for i, along in enumerate(AXES):
+            for across in AXES[i + 1 :]:
+                for order in options.cross_axis_orders:
+                    diagnosis.add(CrossAxis(direction, along, across, machine, order))
     for eid in AXIS_ERROR_IDS:
         basis = model.functions[eid].basis
         spacing = getattr(basis, "breakpoints_mm", None)
         current = float(np.diff(spacing).mean()) if spacing else 50.0
-        add(HigherOrder(eid, current / 2.0, machine, current))
+        diagnosis.add(HigherOrder(eid, current / 2.0, machine, current))
     for index, line in enumerate(readings.lines):
         if line.spec.quantity == "angular":
             continue
-        add(AbbeOffset(index, line.name))
+        diagnosis.add(AbbeOffset(index, line.name))
         if line.spec.quantity == "linear":
-            add(Cosine(index, line.name))
+            diagnosis.add(Cosine(index, line.name))
+    findings = diagnosis.findings
     total = len(findings)
     # family-wise correction over everything tested in this step
     findings = [
@@ -418,34 +531,6 @@ def diagnose(
     ]
     findings.sort(key=lambda f: (f.log10_false_alarm, -f.f_statistic))
     return findings, warnings
-
-
-def _append(
-    findings: list[Finding],
-    tester: _Tester,
-    effect: Effect,
-    readings: Readings,
-    model: ErrorModel,
-    excluded: set[tuple[str, str | None, str]],
-    trials: int = 1,
-    where: str | None = None,
-) -> None:
-    """Test one candidate (unless already kept or rejected) and keep it as a finding when the
-    model cannot absorb it all."""
-    if effect.key in excluded:
-        return
-    columns = effect.design(readings, model)
-    if not np.any(columns):
-        return
-    f, log10_p, detect, beta = tester.test(columns)
-    if detect <= 0.0:
-        return
-    place = where if where is not None else _where(readings, columns, beta)
-    findings.append(
-        Finding(
-            effect, f, _corrected(log10_p, trials), trials, effect.magnitude_um(beta), detect, place
-        )
-    )
 
 
 def _corrected(log10_p: float, trials: int) -> float:
@@ -466,89 +551,162 @@ def _typical_step(readings: Readings) -> dict[str, float]:
     return out
 
 
-def _search_period(
-    tester: _Tester,
-    readings: Readings,
-    model: ErrorModel,
-    axis: str,
-    ref: float,
-    step: float,
-    span: float,
-    findings: list[Finding],
-    excluded: set[tuple[str, str | None, str]],
-) -> None:
-    """Least-squares periodogram along an axis: periods from twice the step (or 2 mm) to a
-    quarter of the stroke; the best one is a finding with its false-alarm level."""
+def _cyclic_candidates(
+    diagnosis: _Diagnosis, axis: str, ref: float, step: float, span: float
+) -> list[str]:
+    """The screw lead's cycle (with its second harmonic) and the strongest cycle of a
+    least-squares periodogram along the axis; warnings where the targets cannot reveal one."""
+    warnings = []
+    machine = diagnosis.model.machine
+    lead = machine.screw_lead_mm.get(axis)
+    if lead:
+        effect = Cyclic(axis, lead, (1, 2), ref)
+        columns = effect.design(diagnosis.readings, diagnosis.model)
+        _, _, detect, _ = diagnosis.tester.test(columns)
+        if detect < 0.2 and effect.key not in diagnosis.excluded:
+            warnings.append(
+                f"the targets of the lines along {axis} (about every {step:.3g} mm) "
+                f"cannot reveal a cyclic error at the {lead:g} mm screw lead: it is "
+                "aliased into the smooth error functions; use steps of 1–3 mm over a "
+                "few leads or irregular target spacing"
+            )
+        diagnosis.add(effect)
     shortest = max(2.0, 2.0 * step if np.isfinite(step) else 2.0)
     longest = span / 4.0
+    if not lead and shortest > 8.0:
+        warnings.append(
+            f"targets about every {step:.3g} mm along {axis}: cycles shorter than "
+            f"{shortest:.3g} mm cannot be searched (a screw cycle of a few mm would go unseen)"
+        )
     if longest <= shortest:
-        return
-    periods = np.geomspace(shortest, longest, 240)
+        return warnings
+    found = _search_period(diagnosis, axis, ref, shortest, longest)
+    if found is not None:
+        period, trials = found
+        where = f"along {axis}, period {period:.4g} mm"
+        one = diagnosis.add(Cyclic(axis, period, (1,), ref, True), trials, where)
+        if one is not None and 2 * shortest <= period:
+            two = diagnosis.add(
+                Cyclic(axis, period, (1, 2), ref, True), trials, where + " with 2nd harmonic"
+            )
+            # one cycle per period: the harmonic variant only where its evidence is stronger
+            stronger = two is not None and two.log10_false_alarm < one.log10_false_alarm
+            loser = one if stronger else two
+            if loser is not None:
+                diagnosis.findings.remove(loser)
+    return warnings
+
+
+def _search_period(
+    diagnosis: _Diagnosis, axis: str, ref: float, shortest: float, longest: float
+) -> tuple[float, int] | None:
+    """Least-squares periodogram along an axis from ``shortest`` to ``longest``: the best period,
+    refined continuously, and the number of independent frequencies searched."""
+    tester = diagnosis.tester
     k = AXIS_INDEX[axis]
-    proj = readings.projection[:, k] * ~readings.is_angular
-    q = readings.position_mm[:, k]
-    best = None
-    for period in periods:
-        phase = 2 * np.pi * (q - ref) / period
-        columns = proj[:, None] * np.stack([np.sin(phase), np.cos(phase)], axis=-1)
-        score = tester.score(columns)
-        if best is None or score > best[0]:
-            best = (score, period)
-    if best is None:
+    positions, _, weight = tester.target_sums(k)
+    if not np.any(weight):
+        return None
+    q = positions[:, k] - ref
+    span = float(np.ptp(q[weight > 0]))
+    if span <= 0:
+        return None
+
+    def scores_of(frequencies: FloatArray) -> FloatArray:
+        phase = 2 * np.pi * np.outer(q, frequencies)
+        sin = tester.score_on_targets(k, np.sin(phase))
+        cos = tester.score_on_targets(k, np.cos(phase))
+        return np.asarray(sin + cos)
+
+    def score(period: float) -> float:
+        return float(scores_of(np.array([1.0 / period]))[0])
+
+    # frequency resolution 1/span: sample it four times finer
+    frequencies = np.arange(1.0 / longest, 1.0 / shortest, 0.25 / span)
+    if frequencies.size < 2:
+        return None
+    scores = scores_of(frequencies)
+    best = int(np.argmax(scores))
+    low = frequencies[max(best - 1, 0)]
+    high = frequencies[min(best + 1, len(frequencies) - 1)]
+    from scipy.optimize import minimize_scalar
+
+    refined = minimize_scalar(
+        lambda f: -score(1.0 / f), bounds=(low, high), method="bounded", options={"xatol": 1e-6}
+    )
+    frequency = float(refined.x) if -refined.fun >= scores[best] else float(frequencies[best])
+    trials = max(1, int(round(span * (1.0 / shortest - 1.0 / longest))))
+    return 1.0 / frequency, trials
+
+
+def _thermal_candidates(
+    diagnosis: _Diagnosis, axis: str, ref: float, bounds: tuple[float, float]
+) -> None:
+    """A drift of the axis' scale driven by time (τ estimated) and, where the files log a
+    changing material temperature, one driven by that temperature: both are candidates."""
+    readings = diagnosis.readings
+    temp = readings.material_temp_c
+    if np.all(np.isfinite(temp)) and np.ptp(temp) > 0.05:
+        diagnosis.add(ThermalDrift(axis, "temperature", reference_mm=ref))
+    duration = float(np.ptp(readings.time_s))
+    if duration <= 0:
         return
-    # independent frequencies over the band: span/shortest − span/longest
-    trials = max(1, int(span / shortest - span / longest))
-    effect = Cyclic(axis, float(best[1]), (1,), ref)
-    _append(
-        findings,
-        tester,
-        effect,
-        readings,
-        model,
-        excluded,
+    # τ well beyond the session makes 1 − exp(−t/τ) a straight line: nothing to tell τ by
+    low, high = bounds[0], min(bounds[1], 20.0 * duration)
+    if high <= low:
+        return
+
+    def f_of(log_tau: float) -> float:
+        effect = ThermalDrift(axis, "time", float(np.exp(log_tau)), ref)
+        return diagnosis.tester.test(effect.design(readings, diagnosis.model))[0]
+
+    grid = np.linspace(np.log(low), np.log(high), 10)
+    values = np.array([f_of(g) for g in grid])
+    best = int(np.argmax(values))
+    from scipy.optimize import minimize_scalar
+
+    refined = minimize_scalar(
+        lambda g: -f_of(g),
+        bounds=(grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]),
+        method="bounded",
+        options={"xatol": 1e-3},
+    )
+    log_tau = float(refined.x) if -refined.fun >= values[best] else float(grid[best])
+    # independent τ over the range: about one per factor e
+    trials = max(1, int(np.ceil(np.log(high / low))))
+    diagnosis.add(
+        ThermalDrift(axis, "time", float(np.exp(log_tau)), ref),
         trials,
-        f"along {axis}, period {best[1]:.3g} mm",
+        f"all lines along {axis}, τ = {np.exp(log_tau) / 60:.3g} min",
     )
 
 
-def _search_local(
-    tester: _Tester,
-    readings: Readings,
-    model: ErrorModel,
-    axis: str,
-    findings: list[Finding],
-    excluded: set[tuple[str, str | None, str]],
-) -> None:
+def _search_local(diagnosis: _Diagnosis, axis: str) -> None:
     """A scan of Gaussian bumps along an axis, in each direction, at several widths."""
-    machine = model.machine
-    low, high = machine.stroke(axis)
+    tester = diagnosis.tester
+    low, high = diagnosis.model.machine.stroke(axis)
     k = AXIS_INDEX[axis]
-    q = readings.position_mm[:, k]
     for direction in AXES:
-        proj = readings.projection[:, AXIS_INDEX[direction]] * ~readings.is_angular
-        if not np.any(proj):
+        positions, _, weight = tester.target_sums(AXIS_INDEX[direction])
+        if not np.any(weight):
             continue
+        q = positions[:, k]
         best = None
         trials = 0
         for width in (4.0, 8.0, 16.0):
             centers = np.arange(low + width, high - width + 1e-9, width)
+            if centers.size == 0:
+                continue
             trials += len(centers)
-            for center in centers:
-                s = (q - center) / width
-                column = proj * np.exp(-0.5 * s * s)
-                score = tester.score(column)
-                if best is None or score > best[0]:
-                    best = (score, center, width)
+            s = (q[:, None] - centers[None, :]) / width
+            scores = tester.score_on_targets(AXIS_INDEX[direction], np.exp(-0.5 * s * s))
+            i = int(np.argmax(scores))
+            if best is None or scores[i] > best[0]:
+                best = (scores[i], centers[i], width)
         if best is None:
             continue
-        effect = LocalDefect(axis, direction, float(best[1]), float(best[2]))
-        _append(
-            findings,
-            tester,
-            effect,
-            readings,
-            model,
-            excluded,
+        diagnosis.add(
+            LocalDefect(axis, direction, float(best[1]), float(best[2])),
             trials,
             f"{axis} at {best[1]:.0f} mm, width {best[2]:.0f} mm, in {direction}",
         )
@@ -564,14 +722,18 @@ def unexplained(
     cross_validation: CrossValidation | None = None,
     alpha: float = 1e-4,
 ) -> list[Unexplained]:
-    """Lines whose run-averaged residual is larger than their repeatability allows.
+    """Lines whose residual is larger than their repeatability allows, and what it follows.
 
     For each line and target the mean residual over runs is compared with σ/√runs (χ² test over
-    the targets, Bonferroni over the lines) on the fit's residual; a significant line is reported
-    with where its largest systematic residual sits and how large it is. With a cross-validation,
-    the place and size come from its held-out residuals: a structure on one line is then sized as
-    that line shows it, not as what is left after the fit bent the model partly towards it.
+    the targets, Bonferroni over the lines) on the fit's residual; so is the spread of the run
+    means about their line's trend in time (a drift the runs disagree by). A significant line is
+    reported with where its largest systematic residual sits, how large it is, and the shares of
+    its residual that follow the target position, the approach direction and time. With a
+    cross-validation, place and size come from its held-out residuals: a structure on one line is
+    then sized as that line shows it, not as what is left after the fit bent the model towards it.
     """
+    from scipy import stats
+
     readings = identification.readings
     held_out = identification.residual if cross_validation is None else cross_validation.residual
     out = []
@@ -586,13 +748,12 @@ def unexplained(
         n = np.bincount(targets, minlength=k)
         valid = n > 0
         means = sums[valid] / n[valid]
-        from scipy import stats
-
         chi2 = float(np.sum(means**2 * n[valid]) / sigma**2)
-        p = float(stats.chi2.sf(chi2, int(valid.sum()))) * count
-        if p >= alpha:
+        p_position = float(stats.chi2.sf(chi2, int(valid.sum())))
+        shares = _shares(readings, identification.residual, index)
+        p_time = _time_p_value(readings, identification.residual, index, sigma)
+        if min(p_position, p_time) * count * 2 >= alpha:
             continue
-        # place and size from the held-out residual (the same as the fit's without one)
         sums = np.bincount(targets, weights=held_out[mask], minlength=k)
         means = sums[valid] / n[valid]
         worst = int(np.argmax(np.abs(means)))
@@ -600,24 +761,219 @@ def unexplained(
         unit = "µrad" if line.spec.quantity == "angular" else "µm"
         magnitude = float(np.max(np.abs(means)))
         rms = float(np.sqrt(np.mean(means**2)))
+        follows = max(shares, key=lambda key: shares[key])
+        if p_time * count * 2 < alpha and p_position * count * 2 >= alpha:
+            # nothing locked to position: size it by the spread of the runs instead
+            magnitude = float(np.sqrt(np.mean(r**2)))
+            follows = "time"
         out.append(
             Unexplained(
                 where=f"line {line.name} at {position:.1f} mm",
                 description=(
                     f"systematic residual on {line.spec.quantity} line {line.name}: RMS "
                     f"{rms:.3g} {unit} over its targets, peak {magnitude:.3g} {unit} at "
-                    f"{position:.1f} mm, beyond its repeatability ({sigma:.3g} {unit}); no effect "
-                    "of the catalogue explains it"
+                    f"{position:.1f} mm, beyond its repeatability ({sigma:.3g} {unit}); it "
+                    f"follows mostly {_FOLLOWS[follows]} (position {shares['position']:.0%}, "
+                    f"direction {shares['direction']:.0%}, time {shares['time']:.0%} of it); no "
+                    "effect of the catalogue explains it"
                 ),
                 magnitude_um=magnitude,
+                correlates_with=shares,
             )
         )
     return out
 
 
+_FOLLOWS = {
+    "position": "the target position (the same in every run)",
+    "direction": "the approach direction",
+    "time": "time (the runs drift apart)",
+}
+
+
+def _line_parts(
+    readings: Readings, residual: FloatArray, index: int
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """A line's residual split into its per-target mean (both directions pooled), the
+    direction part (per target and direction, less that mean) and what remains, with the times."""
+    mask = readings.line == index
+    r = residual[mask]
+    target = readings.target[mask]
+    line = readings.lines[index]
+    direction = line.data.run_direction[readings.run[mask]]
+    k = int(target.max()) + 1
+    key = target * 2 + (direction > 0)
+    counts = np.bincount(key, minlength=2 * k)
+    cell = np.bincount(key, weights=r, minlength=2 * k) / np.maximum(counts, 1)
+    has = counts > 0
+    pair = cell.reshape(k, 2)
+    both = has.reshape(k, 2)
+    position_mean = np.where(
+        both.all(axis=1), pair.mean(axis=1), np.where(both[:, 0], pair[:, 0], pair[:, 1])
+    )
+    position = position_mean[target]
+    by_direction = cell[key] - position
+    return position, by_direction, r - position - by_direction, readings.time_s[mask]
+
+
+def _shares(readings: Readings, residual: FloatArray, index: int) -> dict[str, float]:
+    """Shares of a line's residual sum of squares that follow position, direction and time."""
+    position, direction, rest, time = _line_parts(readings, residual, index)
+    total = float(np.sum((position + direction + rest) ** 2)) or 1.0
+    mask = readings.line == index
+    target = readings.target_mm[mask]
+    time_part = _time_fit(rest, time, target)
+    return {
+        "position": float(np.sum(position**2)) / total,
+        "direction": float(np.sum(direction**2)) / total,
+        "time": float(np.sum(time_part**2)) / total,
+    }
+
+
+def _time_fit(rest: FloatArray, time: FloatArray, target: FloatArray) -> FloatArray:
+    """The part of what is left after position and direction that drifts with time: an offset
+    and a scale, each linear and quadratic in time."""
+    if np.ptp(time) <= 0:
+        return np.zeros_like(rest)
+    t = (time - time.mean()) / np.ptp(time)
+    s = (target - target.mean()) / (np.ptp(target) or 1.0)
+    columns = np.stack([t, t * t - np.mean(t * t), t * s, (t * t - np.mean(t * t)) * s], axis=-1)
+    coef, *_ = np.linalg.lstsq(columns, rest, rcond=None)
+    return np.asarray(columns @ coef)
+
+
+def _time_p_value(readings: Readings, residual: FloatArray, index: int, sigma: float) -> float:
+    """False-alarm level of a drift over time within a line (F-like χ² of the time fit)."""
+    from scipy import stats
+
+    position, direction, rest, time = _line_parts(readings, residual, index)
+    mask = readings.line == index
+    fitted = _time_fit(rest, time, readings.target_mm[mask])
+    chi2 = float(np.sum(fitted**2)) / sigma**2
+    return float(stats.chi2.sf(chi2, 4))
+
+
 # --------------------------------------------------------------------------------------------
 # The loop
 # --------------------------------------------------------------------------------------------
+
+
+def _metric(cv: CrossValidation) -> float:
+    return cv.rms_um if np.isfinite(cv.rms_um) else cv.rms_urad
+
+
+def _fit_metric(identification: Identification) -> float:
+    um, urad = residual_rms(identification)
+    return um if np.isfinite(um) else urad
+
+
+@dataclass(frozen=True, eq=False)
+class _Trial:
+    finding: Finding
+    refit: Identification
+    cv: CrossValidation
+    ok: bool
+    reason: str
+    parameters: dict[str, object]
+
+    @property
+    def score(self) -> float:
+        return _metric(self.cv)
+
+
+class _Fitter:
+    """Refits of one measurement with a set of effects, from the current model."""
+
+    def __init__(
+        self,
+        measurement: Measurement,
+        readings: Readings,
+        options: LoopOptions,
+        redundant: Sequence[str],
+        cancel: CancelToken | None,
+    ) -> None:
+        self.measurement = measurement
+        self.readings = readings
+        self.options = replace(options.identify, redundancy=False, max_iterations=1)
+        self.redundant = redundant
+        self.cancel = cancel
+
+    def __call__(
+        self, effects: Sequence[Effect], initial: ErrorModel
+    ) -> tuple[Identification, CrossValidation]:
+        check(self.cancel)
+        refit = identify(
+            self.measurement,
+            self.options,
+            effects=effects,  # type: ignore[arg-type]
+            readings=self.readings,
+            cancel=self.cancel,
+            initial=initial,
+        )
+        return refit, cross_validate(refit.system, self.readings, self.redundant)
+
+
+def _judge(
+    finding: Finding,
+    current: Identification,
+    cv: CrossValidation,
+    refit: Identification,
+    cv_new: CrossValidation,
+    options: LoopOptions,
+) -> _Trial:
+    """Keep or refuse a refitted candidate (plausibility, margin, generalisation)."""
+    effect = finding.effect
+    index = list(refit.effects).index(effect)
+    values, covariance = refit.effect_parameters[index], refit.effect_covariances[index]
+    parameters = effect.parameters(values, covariance)
+    before, after = _metric(cv), _metric(cv_new)
+    improvement = 1.0 - after / before if before > 0 else 0.0
+    reason = f"cross-validated RMS {before:.4g} → {after:.4g} ({100 * improvement:.1f} % better)"
+    why = effect.implausible(values, covariance, options.plausibility)
+    if why is not None:
+        return _Trial(finding, refit, cv_new, False, f"{reason}; implausible: {why}", parameters)
+    if improvement < options.margin:
+        reason += f"; below the {100 * options.margin:.0f} % margin: refused"
+        return _Trial(finding, refit, cv_new, False, reason, parameters)
+    fit_gain = _fit_metric(current) ** 2 - _fit_metric(refit) ** 2
+    held_out_gain = before**2 - after**2
+    confirmed = held_out_gain / fit_gain if fit_gain > 0 else 1.0
+    if confirmed < options.generalisation:
+        reason += (
+            f"; the held-out data confirm only {100 * confirmed:.0f} % of what it removes from "
+            f"the fitted residual (at least {100 * options.generalisation:.0f} % needed): it does "
+            "not describe the structure it fits; refused"
+        )
+        return _Trial(finding, refit, cv_new, False, reason, parameters)
+    return _Trial(finding, refit, cv_new, True, reason, parameters)
+
+
+def _cv_warnings(readings: Readings, cv: CrossValidation, redundant: Sequence[str]) -> list[str]:
+    """What the plan allows the loop to cross-validate, said once."""
+    out = []
+    not_redundant = [line.name for line in readings.lines if line.name not in redundant]
+    if not_redundant and cv.method != "leave-one-line-out":
+        names = ", ".join(not_redundant[:5]) + (" …" if len(not_redundant) > 5 else "")
+        out.append(
+            f"{len(not_redundant)} of {len(readings.lines)} lines are not redundant for this plan "
+            f"({names}): leaving one out loses what only it sees, so the loop cross-validates on "
+            f"held-out blocks of {BLOCK_MM:g} mm of targets; an effect is kept only where the "
+            "rest of each line predicts the held-out block"
+        )
+    return out
+
+
+def _can_cross_validate(readings: Readings, cv: CrossValidation) -> str | None:
+    """Why the plan is too small to cross-validate, or None."""
+    if cv.method == "leave-one-line-out":
+        return None if len(readings.lines) >= 3 else "fewer than three lines"
+    blocks = [len(np.unique(np.floor(line.data.targets_mm / BLOCK_MM))) for line in readings.lines]
+    if max(blocks, default=0) < 3:
+        return (
+            f"every line is shorter than three blocks of {BLOCK_MM:g} mm of targets and not "
+            "every line is redundant"
+        )
+    return None
 
 
 def close_loop(
@@ -626,106 +982,214 @@ def close_loop(
     progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
 ) -> LoopResult:
-    """Identify, then add effects from the catalogue while cross-validation says they help."""
+    """Identify, then add effects from the catalogue while cross-validation says they help,
+    then take out any that a later one made unnecessary."""
     options = options or LoopOptions()
     readings = flatten(measurement)
     report(progress, 0.0, "identifying the 21 errors")
     base = identify(measurement, options.identify, readings=readings, cancel=cancel)
     redundant = base.identifiability.redundant_lines
     cv_base = cross_validate(base.system, readings, redundant)
-    refit_options = replace(options.identify, redundancy=False, max_iterations=3)
+    warnings = _cv_warnings(readings, cv_base, redundant)
+    why_not = _can_cross_validate(readings, cv_base)
+    if why_not is not None:
+        warnings.append(
+            f"the loop cannot cross-validate this plan ({why_not}): no effect is tested; measure "
+            "more lines or longer lines to close the loop"
+        )
+        leftover = unexplained(base, cv_base, options.alpha)
+        return LoopResult(base, base, cv_base, cv_base, (), tuple(leftover), tuple(warnings))
+    fit = _Fitter(measurement, readings, options, redundant, cancel)
     current, cv = base, cv_base
     kept: list[Effect] = []
     steps: list[Step] = []
-    warnings: list[str] = []
-    rejected: set[tuple[str, str | None, str]] = set()
-    for number in range(1, options.max_steps + 1):
+    refused: dict[EffectKey, float] = {}  # F statistic at which a candidate was last refused
+    number = 0
+    while number < options.max_steps:
+        number += 1
         check(cancel)
-        report(progress, 0.1 + 0.8 * number / (options.max_steps + 1), f"loop step {number}")
-        findings, step_warnings = diagnose(current, [e.key for e in kept] + sorted(rejected))
+        report(progress, 0.1 + 0.75 * number / (options.max_steps + 1), f"loop step {number}")
+        findings, step_warnings = diagnose(current, [e.key for e in kept], options)
         warnings += [w for w in step_warnings if w not in warnings]
-        proposals = [f for f in findings if f.log10_false_alarm < np.log10(options.alpha)]
-        if not proposals:
+        proposals = _distinct(
+            [
+                f
+                for f in findings
+                if f.log10_false_alarm < np.log10(options.alpha)
+                and f.f_statistic > options.retry_factor * refused.get(f.effect.key, 0.0)
+            ]
+        )
+        chosen: _Trial | None = None
+        tried = 0
+        while proposals and chosen is None and tried < options.max_refits_per_step:
+            # refit the strongest few, but not those far weaker than the best: they are scored
+            # again at the next step, against a model that then holds the strongest
+            strongest = max(f.gain for f in proposals)
+            batch = [
+                f
+                for f in proposals[: options.candidates_per_step]
+                if f.gain >= options.contender_share * strongest
+            ]
+            proposals = [f for f in proposals if f not in batch]
+            trials = []
+            for finding in batch:
+                refit, cv_new = fit(_with(kept, finding.effect), current.model)
+                trials.append(_judge(finding, current, cv, refit, cv_new, options))
+            tried += len(batch)
+            chosen = _simplest_best([t for t in trials if t.ok], options.tie)
+            for trial in trials:
+                if not trial.ok:
+                    refused[trial.finding.effect.key] = trial.finding.f_statistic
+                reason = trial.reason
+                if trial.ok and trial is not chosen:
+                    reason += f"; {chosen.finding.effect.label if chosen else ''} was kept instead"
+                steps.append(_step(number, trial, trial is chosen, reason, current, cv))
+        if chosen is None:
             break
-        trials = []
-        for finding in proposals[: options.candidates_per_step]:
-            check(cancel)
-            effects = _with(kept, finding.effect)
-            refit = identify(
-                measurement,
-                refit_options,
-                effects=effects,
-                readings=readings,
-                cancel=cancel,
-                initial=current.model,
-            )
-            cv_new = cross_validate(refit.system, readings, redundant)
-            trials.append(
-                (
-                    cv_new.rms_um if np.isfinite(cv_new.rms_um) else cv_new.rms_urad,
-                    finding,
-                    refit,
-                    cv_new,
-                )
-            )
-        trials.sort(key=lambda t: t[0])
-        score, finding, refit, cv_new = trials[0]
-        before = cv.rms_um if np.isfinite(cv.rms_um) else cv.rms_urad
-        improvement = 1.0 - score / before if before > 0 else 0.0
-        keep = improvement >= options.margin
-        index = list(refit.effects).index(finding.effect)
-        params = finding.effect.parameters(
-            refit.effect_parameters[index], refit.effect_covariances[index]
-        )
-        reason = (
-            f"cross-validated RMS {before:.4g} → {score:.4g} ({100 * improvement:.1f} % better)"
-        )
-        if not keep:
-            reason += f"; below the {100 * options.margin:.0f} % margin: rejected"
-        steps.append(
-            Step(
-                number,
-                finding,
-                keep,
-                reason,
-                residual_rms(current)[0],
-                residual_rms(refit)[0],
-                cv.rms_um,
-                cv_new.rms_um,
-                params,
-                group_rms(current),
-                group_rms(refit),
-            )
-        )
-        for _, other, _, _ in trials[1:]:
-            rejected.add(other.effect.key)
-        if not keep:
-            rejected.add(finding.effect.key)
-            if all(t[0] >= before * (1 - options.margin) for t in trials):
-                break
-            continue
-        kept = list(refit.effects)  # type: ignore[arg-type]
-        current, cv = refit, cv_new
+        kept = list(chosen.refit.effects)  # type: ignore[arg-type]
+        current, cv = chosen.refit, chosen.cv
+    current, cv, kept = _backward(fit, current, cv, kept, base, cv_base, options, steps, number)
     report(progress, 0.95, "looking for what is still unexplained")
-    leftover = unexplained(current, cv)
+    leftover = unexplained(current, cv, options.alpha)
     report(progress, 1.0, "loop closed")
     return LoopResult(base, current, cv_base, cv, tuple(steps), tuple(leftover), tuple(warnings))
 
 
+def _simplest_best(passing: list[_Trial], tie: float) -> _Trial | None:
+    """The candidate with the lowest cross-validated error; among those within ``tie`` of it,
+    the one with the fewest parameters (fitted and searched): a drift driven by the logged
+    temperature before one whose time constant had to be estimated, when both explain alike."""
+    if not passing:
+        return None
+    best = min(t.score for t in passing)
+    close = [t for t in passing if t.score <= best * (1.0 + tie)]
+    return min(close, key=lambda t: (_complexity(t), t.score))
+
+
+def _complexity(trial: _Trial) -> int:
+    effect = trial.finding.effect
+    index = list(trial.refit.effects).index(effect)
+    return int(trial.refit.effect_parameters[index].size) + effect.searched
+
+
+def _distinct(findings: list[Finding]) -> list[Finding]:
+    """The findings less those that describe the same structure as a stronger one: cycles on
+    one axis whose periods differ by less than 1 % (the lead and the periodogram's peak)."""
+    out: list[Finding] = []
+    for finding in findings:
+        effect = finding.effect
+        duplicate = isinstance(effect, Cyclic) and any(
+            isinstance(other.effect, Cyclic)
+            and other.effect.axis == effect.axis
+            and abs(other.effect.period_mm / effect.period_mm - 1.0) < 0.01
+            for other in out
+        )
+        if not duplicate:
+            out.append(finding)
+    return out
+
+
+def _backward(
+    fit: _Fitter,
+    current: Identification,
+    cv: CrossValidation,
+    kept: list[Effect],
+    base: Identification,
+    cv_base: CrossValidation,
+    options: LoopOptions,
+    steps: list[Step],
+    number: int,
+) -> tuple[Identification, CrossValidation, list[Effect]]:
+    """Take out, one at a time, the kept effect whose removal costs least, while that cost is
+    below the margin that earned it its place."""
+    while kept:
+        costs = []
+        # Removing an effect raises the weighted sum of squares by its Wald statistic βᵀC⁻¹β
+        # (in σ²); one that raises it far beyond what the margin allows needs no refit to
+        # know it stays.
+        allowed = ((1.0 + options.margin) ** 2 - 1.0) * max(len(current.residual), 1)
+        for effect in kept:
+            index = list(current.effects).index(effect)
+            if _wald(current, index) > 4.0 * allowed:
+                continue
+            rest = [e for e in kept if e is not effect]
+            refit, cv_new = (base, cv_base) if not rest else fit(rest, current.model)
+            costs.append((_metric(cv_new) / _metric(cv) - 1.0, effect, refit, cv_new))
+        if not costs:
+            break
+        cost, effect, refit, cv_new = min(costs, key=lambda c: c[0])
+        if cost >= options.margin:
+            break
+        index = list(current.effects).index(effect)
+        finding = Finding(effect, float("nan"), 0.0, 0, 0.0, 0.0, "backward pass")
+        parameters = effect.parameters(
+            current.effect_parameters[index], current.effect_covariances[index]
+        )
+        reason = (
+            f"removed in the backward pass: without it the cross-validated RMS is "
+            f"{_metric(cv):.4g} → {_metric(cv_new):.4g} ({100 * cost:+.1f} %), less than the "
+            f"{100 * options.margin:.0f} % margin; a later effect explains what it did"
+        )
+        trial = _Trial(finding, refit, cv_new, False, reason, parameters)
+        steps.append(_step(number, trial, False, reason, current, cv, stage="backward"))
+        kept = [e for e in kept if e is not effect]
+        current, cv = refit, cv_new
+    return current, cv, kept
+
+
+def _wald(identification: Identification, index: int) -> float:
+    """βᵀC⁻¹β of one effect's parameters in a fit, in units of the fit's σ²."""
+    beta = identification.effect_parameters[index]
+    covariance = identification.effect_covariances[index] / max(
+        identification.sigma_scale**2, 1e-300
+    )
+    return float(beta @ np.linalg.pinv(covariance) @ beta)
+
+
+def _step(
+    number: int,
+    trial: _Trial,
+    kept: bool,
+    reason: str,
+    current: Identification,
+    cv: CrossValidation,
+    stage: str = "forward",
+) -> Step:
+    return Step(
+        number,
+        trial.finding,
+        kept,
+        reason,
+        residual_rms(current)[0],
+        residual_rms(trial.refit)[0],
+        cv.rms_um,
+        trial.cv.rms_um,
+        trial.parameters,
+        group_rms(current),
+        group_rms(trial.refit),
+        stage,
+    )
+
+
 def _with(kept: list[Effect], effect: Effect) -> list[Effect]:
-    """Kept effects plus a new one; a position-dependent reversal replaces the constant one."""
-    out = [
-        e
-        for e in kept
-        if not (isinstance(effect, Reversal) and isinstance(e, Reversal) and e.axis == effect.axis)
-    ]
-    return out + [effect]
+    """Kept effects plus a new one; a position-dependent reversal replaces the constant one, and
+    a cross-axis function replaces the one kept for the same direction."""
+
+    def replaced(e: Effect) -> bool:
+        if isinstance(effect, Reversal) and isinstance(e, Reversal):
+            return e.axis == effect.axis
+        if isinstance(effect, CrossAxis) and isinstance(e, CrossAxis):
+            return e.direction == effect.direction
+        return False
+
+    return [e for e in kept if not replaced(e)] + [effect]
 
 
 __all__ = [
     "Finding",
     "LoopOptions",
     "LoopResult",
+    "Unexplained",
     "close_loop",
     "diagnose",
     "unexplained",

@@ -83,14 +83,16 @@ def verify_on_virtual_machine(
     request = VerifyRequest(grid_spacing_mm=grid_spacing_mm, range_mm=extents)
     true = verify(VirtualMachineSource(machine), compensations, request)
     true_by_name = dict(true.methods)
-    before = machine.measure(lines)
+    # Fresh noise on both sides: "before" is a new session on the uncompensated machine, not the
+    # logs the model was fitted to, and every method is re-measured in a session of its own.
+    before = machine.measure(lines, realisation=1)
     out = []
     chosen = [m for m in methods if m in compensations]
     for k, name in enumerate(chosen):
         check(cancel)
         report(progress, k / max(len(chosen), 1), f"re-measuring with {name}")
         description, compensation = compensations[name]
-        after = machine.measure(lines, compensation=compensation.command_mm)
+        after = machine.measure(lines, compensation=compensation.command_mm, realisation=2 + k)
         out.append(
             MethodVerification(
                 name,

@@ -210,6 +210,11 @@ def export_model(
     return dataclasses.replace(result, files=(*output.files, manifest))
 
 
+#: Methods that invert the model exactly: their rate predicted on that same model is 100 % by
+#: construction and carries no information.
+SELF_EXACT_METHODS = ("nc_rewriting",)
+
+
 def compensation_report(
     source: ErrorSource | ErrorModel,
     files: tuple[str | Path, ...] = (),
@@ -245,6 +250,9 @@ def compensation_report(
             f"{verification.rate_definition}; volumetric = {volumetric_name}, axis_tables = "
             "per-axis positioning tables only; predicted on the identified model"
         ),
+        # NC-program rewriting applies the model's own inverse: on the model it is exact by
+        # construction (100 %), which says nothing about the machine. Only a re-measurement can
+        # rate it, so it has no predicted row.
         "methods": {
             name: {
                 "description": m.description,
@@ -252,6 +260,13 @@ def compensation_report(
                 "range_percent": dict(m.rates.range_percent),
             }
             for name, m in methods.items()
+            if name not in SELF_EXACT_METHODS
+        },
+        "not_predicted": {
+            name: "the model's own inverse: exact on the model by construction; rated only by "
+            "re-measuring the machine"
+            for name in methods
+            if name in SELF_EXACT_METHODS
         },
         "tool_offset_mm": list(verification.tool_offset_mm),
     }
