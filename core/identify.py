@@ -22,7 +22,7 @@ eigen-decomposition of the column-scaled normal matrix.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -248,6 +248,29 @@ class LinearSystem:
     effect_design: FloatArray  # (n, p_effect)
     y: FloatArray  # the (pseudo-)observations of this linearisation
     weights: FloatArray
+    #: the effects' separable directions (see :func:`separable_reduction`), if restricted
+    reduction: Reduction | None = None
+
+    def reduced(self) -> LinearSystem:
+        """The same least-squares problem in the reduced unknowns (effects restricted to their
+        separable directions); itself when unrestricted."""
+        if self.reduction is None:
+            return self
+        r = self.reduction.matrix
+        rigid = self.target_design.shape[1]
+        blocks = [b for b in self.blocks if b.kind != "effect"] + list(self.reduction.blocks)
+        return LinearSystem(
+            blocks,
+            r.T @ self.normal @ r,
+            r.T @ self.rhs,
+            [r.T @ m @ r for m in self.line_normal],
+            [r.T @ b for b in self.line_rhs],
+            self.target_design,
+            self.target_of_reading,
+            self.effect_design @ r[rigid:, rigid:],
+            self.y,
+            self.weights,
+        )
 
     @property
     def size(self) -> int:
@@ -287,6 +310,58 @@ def _scaled_pinv(normal: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray
     return pinv_scaled * scale[:, None] * scale[None, :], scale, values, vectors
 
 
+#: An effect direction is fitted only where more than this share of its signal (column-scaled)
+#: is not also a combination of the 21 errors and the lines' nuisances: what the plan cannot tell
+#: apart from a rigid body at all stays with the rigid body (a sag's bilinear part that a roll
+#: produces as well stays a roll) instead of being split between them by a minimum norm.
+SEPARABILITY = 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class Reduction:
+    """The effects' unknowns restricted to what the plan tells apart from a rigid body.
+
+    ``matrix`` (P × P') maps the reduced unknowns to all of them: the identity on the 21 errors'
+    and the lines' columns (which come first), and for each effect the separable directions of
+    its columns. ``blocks`` are the effects' column blocks in the reduced unknowns.
+    """
+
+    matrix: FloatArray
+    blocks: tuple[ColumnBlock, ...]
+
+
+def separable_reduction(system: LinearSystem) -> Reduction | None:
+    """Per effect, the eigenvectors of its Schur complement against the other columns (the
+    information it does not share with the 21 errors and the nuisances), column-scaled, whose
+    eigenvalue reaches :data:`SEPARABILITY`; None without effects."""
+    effects = [b for b in system.blocks if b.kind == "effect"]
+    if not effects:
+        return None
+    rigid = effects[0].columns.start  # effect columns come last
+    scale = _column_scale(system.normal)
+    scaled = system.normal * scale[:, None] * scale[None, :]
+    values, vectors = np.linalg.eigh(scaled[:rigid, :rigid])
+    seen = values > RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
+    vectors, values = vectors[:, seen], values[seen]
+    pieces = []
+    blocks = []
+    start = rigid
+    for block in effects:
+        columns = np.arange(block.columns.start, block.columns.stop)
+        projected = vectors.T @ scaled[:rigid, columns]
+        schur = scaled[np.ix_(columns, columns)] - projected.T @ (projected / values[:, None])
+        s_values, s_vectors = np.linalg.eigh(schur)
+        kept = s_vectors[:, s_values > SEPARABILITY] * scale[columns][:, None]
+        pieces.append((columns, kept))
+        blocks.append(replace(block, columns=slice(start, start + kept.shape[1])))
+        start += kept.shape[1]
+    matrix = np.zeros((system.size, start))
+    matrix[:rigid, :rigid] = np.eye(rigid)
+    for (columns, kept), block in zip(pieces, blocks, strict=True):
+        matrix[columns, block.columns] = kept
+    return Reduction(matrix, tuple(blocks))
+
+
 @dataclass(frozen=True, eq=False)
 class _Subspace:
     """The identifiable subspace of a system, fixed in the column scaling of its first
@@ -294,29 +369,12 @@ class _Subspace:
 
     scale: FloatArray
     basis: FloatArray  # (P, rank), orthonormal in scaled coordinates
-    null: FloatArray  # (P, P − rank), the directions the plan cannot see, scaled coordinates
 
     @classmethod
     def of(cls, normal: FloatArray) -> _Subspace:
         _, scale, values, vectors = _scaled_pinv(normal)
         keep = values > RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
-        return cls(scale, vectors[:, keep], vectors[:, ~keep])
-
-    def attribution(self, columns: NDArray[np.int64]) -> FloatArray | None:
-        """A projection P (P × P) that moves whatever the plan cannot tell apart out of
-        ``columns`` (the effects' unknowns) and into the others (the 21 errors and the lines'
-        nuisances): P·x predicts every reading as x does, and its ``columns`` part is the
-        smallest such. An effect then holds only what no rigid body produces; a roll the plan
-        sees as well as a cross-axis term stays a roll. None when nothing needs moving."""
-        if columns.size == 0 or self.null.shape[1] == 0:
-            return None
-        directions = self.null * self.scale[:, None]  # unscaled null directions
-        part = directions[columns]
-        if not np.any(np.abs(part) > 1e-12 * max(float(np.abs(directions).max()), 1e-300)):
-            return None
-        selector = np.zeros((columns.size, directions.shape[0]))
-        selector[np.arange(columns.size), columns] = 1.0
-        return np.eye(directions.shape[0]) - directions @ np.linalg.pinv(part) @ selector
+        return cls(scale, vectors[:, keep])
 
     def _reduced(self, normal: FloatArray) -> tuple[FloatArray, FloatArray]:
         t = self.basis * self.scale[:, None]  # x = t z
@@ -713,7 +771,9 @@ def identify(
     subspace: _Subspace | None = None
     rank_info: Identifiability | None = None
     solution = np.zeros(0)
-    attribution: FloatArray | None = None
+    reduction: Reduction | None = None
+    expand = np.eye(0)
+    reduced: LinearSystem | None = None
     max_iterations = options.max_iterations if options.refine else 1
     noise = float(np.median(readings.sigma))
     for iterations in range(1, max_iterations + 1):
@@ -736,30 +796,21 @@ def identify(
                 structural = build_system(
                     readings, targets, zero, gauge, effects, pseudo_y, effect_model=current
                 )
-            subspace = _Subspace.of(structural.normal)
-            # What the plan sees of the 21 errors is judged without the effects: whatever an
-            # effect shares with a rigid body is attributed to the rigid body (see
-            # _Subspace.attribution), so it does not make an error "undetermined".
+            reduction = separable_reduction(structural)
+            structural.reduction = reduction
+            subspace = _Subspace.of(structural.reduced().normal)
+            # What the plan sees of the 21 errors is judged without the effects: what an effect
+            # shares with a rigid body is left to the rigid body (separable_reduction).
             rank_info = identifiability(
                 _without_effects(structural),
                 gauge,
                 [line.name for line in readings.lines],
                 options.redundancy,
             )
-        solution = subspace.solve(system.normal, system.rhs)
-        if attribution is None:
-            effect_columns = np.concatenate(
-                [
-                    np.arange(b.columns.start, b.columns.stop)
-                    for b in system.blocks
-                    if b.kind == "effect"
-                ]
-                or [np.empty(0, dtype=np.int64)]
-            ).astype(np.int64)
-            attribution = subspace.attribution(effect_columns)
-            if attribution is None:
-                attribution = np.eye(system.size)
-        solution = attribution @ solution
+        system.reduction = reduction
+        reduced = system.reduced()
+        expand = np.eye(system.size) if reduction is None else reduction.matrix
+        solution = expand @ subspace.solve(reduced.normal, reduced.rhs)
         new_theta = solution[: gauge.size]
         change = _max_value_change(model, gauge, theta, new_theta)
         theta = new_theta
@@ -775,8 +826,8 @@ def identify(
     dof = max(len(readings) - fitted_rank, 1)
     chi2 = float(np.sum(system.weights * design_residual**2))
     sigma_scale = float(np.sqrt(chi2 / dof))
-    assert attribution is not None
-    normal_inverse = attribution @ subspace.inverse(system.normal) @ attribution.T
+    assert reduced is not None
+    normal_inverse = expand @ subspace.inverse(reduced.normal) @ expand.T
     cov_all = normal_inverse * sigma_scale**2
     g = gauge.size
     covariance = gauge.matrix @ cov_all[:g, :g] @ gauge.matrix.T
@@ -856,6 +907,7 @@ def cross_validate(
     alignment are unknown for a line never seen. When some lines are not redundant (leaving them
     out loses rank), held-out contiguous blocks of targets are used instead.
     """
+    system = system.reduced()
     names = [line.name for line in readings.lines]
     if redundant is not None and set(names) - set(redundant):
         return _cross_validate_blocks(system, readings)

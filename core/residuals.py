@@ -93,6 +93,9 @@ class LoopOptions:
         would remove is at least this share of the strongest proposal's.
     tie : candidates whose cross-validated RMS is within this share of the best are equal; the
         one with fewer parameters is kept.
+    repeatability_log10, repeatability_spread : a candidate whose size, fitted run by run,
+        varies beyond the noise at this false-alarm level (log10) and by more than this share
+        is refused (:func:`_run_to_run`).
     time_constants_s : the range over which a time-driven drift's τ is estimated.
     """
 
@@ -105,6 +108,8 @@ class LoopOptions:
     retry_factor: float = 2.0
     contender_share: float = 0.25
     tie: float = 0.01
+    repeatability_log10: float = -6.0
+    repeatability_spread: float = 0.1
     time_constants_s: tuple[float, float] = (300.0, 7 * 86400.0)
     cross_axis_orders: tuple[int, ...] = (3, 4)
     plausibility: Plausibility = field(default_factory=Plausibility)
@@ -327,23 +332,16 @@ class _Tester:
         """
         d = np.atleast_2d(columns.T).T
         system = self.system
-        # set-up effects act on one line: work on the readings they touch only
-        rows = np.flatnonzero(np.any(d != 0.0, axis=1))
-        if rows.size > 0.5 * len(d):
-            rows = slice(None)  # type: ignore[assignment]
-        d_rows = d[rows]
-        wd = d_rows * self.w[rows, None]
-        if isinstance(rows, slice):
-            agg = self.to_targets @ wd
-            target_part = system.target_design.T @ agg
+        wd = d * self.w[:, None]
+        agg = self.to_targets @ wd
+        # set-up effects act on one line: multiply only the targets they touch
+        touched = np.flatnonzero(np.any(agg != 0.0, axis=1))
+        if touched.size < 0.25 * len(agg):
+            target_part = system.target_design[touched].T @ agg[touched]
         else:
-            touched, local = np.unique(system.target_of_reading[rows], return_inverse=True)
-            agg = np.stack(
-                [np.bincount(local, weights=c, minlength=touched.size) for c in wd.T], axis=-1
-            )
-            target_part = system.target_design[touched].T @ agg
-        atwd = np.vstack([target_part, system.effect_design[rows].T @ wd])
-        dtwd = d_rows.T @ wd
+            target_part = system.target_design.T @ agg
+        atwd = np.vstack([target_part, system.effect_design.T @ wd])
+        dtwd = d.T @ wd
         s = dtwd - atwd.T @ self.ident.normal_inverse @ atwd
         diag = np.diag(dtwd)
         share = np.where(diag > 0, np.diag(s) / np.where(diag > 0, diag, 1.0), 0.0)
@@ -359,18 +357,19 @@ class _Tester:
         self.last_dimensions = k
         if k == 0:
             return 0.0, 0.0, detect, beta
-        proj = vectors[:, keep].T @ (d_rows.T @ self.wr[rows])[useful]
+        proj = vectors[:, keep].T @ (d.T @ self.wr)[useful]
         delta = float(np.sum(proj**2 / values[keep]))
         beta[useful] = vectors[:, keep] @ (proj / values[keep])
         f_stat = (delta / k) / self.sigma2
-        from scipy import stats  # slow to import: only when a candidate is tested
+        from scipy import special  # the distributions' functions without scipy.stats' overhead
 
-        log_p = float(stats.f.logsf(f_stat, k, self.dof))
-        if not np.isfinite(log_p):
-            # far in the tail: the χ² limit, then its leading exponential term
-            log_p = float(stats.chi2.logsf(f_stat * k, k))
+        with np.errstate(divide="ignore"):
+            log_p = float(np.log(special.fdtrc(k, self.dof, f_stat)))
             if not np.isfinite(log_p):
-                log_p = -0.5 * f_stat * k
+                # far in the tail: the χ² limit, then its leading exponential term
+                log_p = float(np.log(special.chdtrc(k, f_stat * k)))
+        if not np.isfinite(log_p):
+            log_p = -0.5 * f_stat * k
         return float(f_stat), log_p / np.log(10.0), detect, beta
 
     def score(self, columns: FloatArray) -> float:
@@ -399,10 +398,15 @@ class _Tester:
             )
         return cache[direction]
 
-    def score_on_targets(self, direction: int, shapes: FloatArray) -> FloatArray:
+    def score_on_targets(
+        self, direction: int, shapes: FloatArray, targets: NDArray[np.bool_] | None = None
+    ) -> FloatArray:
         """:meth:`score` of many single-shape candidates at once: ``shapes`` (T, m) holds the
-        function of each candidate at every target; returns m scores."""
+        function of each candidate at every target (at the ``targets`` selected, if given: the
+        others must not see the direction); returns m scores."""
         _, wrp, wpp = self.target_sums(direction)
+        if targets is not None:
+            wrp, wpp = wrp[targets], wpp[targets]
         g = shapes.T @ wrp
         dtwd = (shapes * shapes).T @ wpp
         return np.asarray(g**2 / np.maximum(dtwd, 1e-300) / self.sigma2)
@@ -506,7 +510,7 @@ def diagnose(
             diagnosis.add(Reversal(axis, order, (low, high)))
         warnings += _cyclic_candidates(diagnosis, axis, ref, step[axis], high - low)
         _thermal_candidates(diagnosis, axis, ref, options.time_constants_s)
-        _search_local(diagnosis, axis)
+        _search_local(diagnosis, axis, step[axis])
     for direction in AXES:
         for i, along in enumerate(AXES):
             for across in AXES[i + 1 :]:
@@ -618,25 +622,38 @@ def _search_period(
         cos = tester.score_on_targets(k, np.cos(phase))
         return np.asarray(sin + cos)
 
-    def score(period: float) -> float:
-        return float(scores_of(np.array([1.0 / period]))[0])
-
     # frequency resolution 1/span: sample it four times finer
     frequencies = np.arange(1.0 / longest, 1.0 / shortest, 0.25 / span)
     if frequencies.size < 2:
         return None
     scores = scores_of(frequencies)
-    best = int(np.argmax(scores))
+
+    def projected_gain(frequency: float) -> float:
+        """The drop of the residual sum of squares a cycle at this frequency would bring once
+        what the smooth error functions absorb is projected out: the screening score ignores
+        that absorption and so misplaces the peak a little, which over a stroke of many
+        periods would slip the phase."""
+        cycle = Cyclic(axis, 1.0 / frequency, (1,), ref)
+        f_statistic = tester.test(cycle.design(diagnosis.readings, diagnosis.model))[0]
+        return f_statistic * tester.last_dimensions
+
+    peaks = np.flatnonzero((scores >= np.roll(scores, 1)) & (scores >= np.roll(scores, -1)))
+    candidates = (
+        peaks[np.argsort(scores[peaks])[::-1][:3]] if peaks.size else [int(np.argmax(scores))]
+    )
+    trials = max(1, int(round(span * (1.0 / shortest - 1.0 / longest))))
+    gains = {int(i): projected_gain(float(frequencies[i])) for i in candidates}
+    best = max(gains, key=lambda i: gains[i])
+    if not _worth_refining(diagnosis, Cyclic(axis, 1.0 / frequencies[best], (1,), ref), trials):
+        return 1.0 / float(frequencies[best]), trials
     low = frequencies[max(best - 1, 0)]
     high = frequencies[min(best + 1, len(frequencies) - 1)]
     from scipy.optimize import minimize_scalar
 
     refined = minimize_scalar(
-        lambda f: -score(1.0 / f), bounds=(low, high), method="bounded", options={"xatol": 1e-6}
+        lambda f: -projected_gain(f), bounds=(low, high), method="bounded", options={"xatol": 1e-7}
     )
-    frequency = float(refined.x) if -refined.fun >= scores[best] else float(frequencies[best])
-    trials = max(1, int(round(span * (1.0 / shortest - 1.0 / longest))))
-    return 1.0 / frequency, trials
+    return 1.0 / float(refined.x), trials
 
 
 def _thermal_candidates(
@@ -663,6 +680,14 @@ def _thermal_candidates(
     grid = np.linspace(np.log(low), np.log(high), 10)
     values = np.array([f_of(g) for g in grid])
     best = int(np.argmax(values))
+    # independent τ over the range: about one per factor e
+    trials = max(1, int(np.ceil(np.log(high / low))))
+    guess = ThermalDrift(axis, "time", float(np.exp(grid[best])), ref)
+    if not _worth_refining(diagnosis, guess, trials):
+        diagnosis.add(
+            guess, trials, f"all lines along {axis}, τ = {guess.time_constant_s / 60:.3g} min"
+        )
+        return
     from scipy.optimize import minimize_scalar
 
     refined = minimize_scalar(
@@ -672,8 +697,6 @@ def _thermal_candidates(
         options={"xatol": 1e-3},
     )
     log_tau = float(refined.x) if -refined.fun >= values[best] else float(grid[best])
-    # independent τ over the range: about one per factor e
-    trials = max(1, int(np.ceil(np.log(high / low))))
     diagnosis.add(
         ThermalDrift(axis, "time", float(np.exp(log_tau)), ref),
         trials,
@@ -681,35 +704,102 @@ def _thermal_candidates(
     )
 
 
-def _search_local(diagnosis: _Diagnosis, axis: str) -> None:
-    """A scan of Gaussian bumps along an axis, in each direction, at several widths."""
+#: Widths (1 σ, mm) of the local-defect scan; the best is then refined continuously.
+LOCAL_WIDTHS_MM = (3.0, 6.0, 12.0, 24.0, 40.0)
+
+
+def _search_local(diagnosis: _Diagnosis, axis: str, step: float) -> None:
+    """A scan of Gaussian bumps along an axis, in each direction, over widths of 3–40 mm; the
+    best place and width refined continuously against what the model cannot absorb. A bump
+    narrower than the targets' spacing (``step``) would be one target's value, not a shape of
+    the guideway: widths start at the spacing."""
+    narrowest = max(2.0, step if np.isfinite(step) else 2.0)
     tester = diagnosis.tester
     low, high = diagnosis.model.machine.stroke(axis)
     k = AXIS_INDEX[axis]
     for direction in AXES:
         positions, _, weight = tester.target_sums(AXIS_INDEX[direction])
-        if not np.any(weight):
+        seen = weight > 0
+        if not np.any(seen):
             continue
-        q = positions[:, k]
+        q = positions[seen, k]
         best = None
         trials = 0
-        for width in (4.0, 8.0, 16.0):
-            centers = np.arange(low + width, high - width + 1e-9, width)
+        for width in [w for w in LOCAL_WIDTHS_MM if w >= narrowest] or [narrowest]:
+            centers = np.arange(low + width, high - width + 1e-9, width / 2.0)
             if centers.size == 0:
                 continue
-            trials += len(centers)
+            trials += len(centers) // 2 + 1
             s = (q[:, None] - centers[None, :]) / width
-            scores = tester.score_on_targets(AXIS_INDEX[direction], np.exp(-0.5 * s * s))
+            scores = tester.score_on_targets(AXIS_INDEX[direction], np.exp(-0.5 * s * s), seen)
             i = int(np.argmax(scores))
             if best is None or scores[i] > best[0]:
                 best = (scores[i], centers[i], width)
         if best is None:
             continue
+        center, width = float(best[1]), float(best[2])
+        if _worth_refining(diagnosis, LocalDefect(axis, direction, center, width), trials):
+            center, width = _refine_local(
+                diagnosis, axis, direction, center, width, (low, high), narrowest
+            )
         diagnosis.add(
-            LocalDefect(axis, direction, float(best[1]), float(best[2])),
+            LocalDefect(axis, direction, center, width),
             trials,
-            f"{axis} at {best[1]:.0f} mm, width {best[2]:.0f} mm, in {direction}",
+            f"{axis} at {center:.0f} mm, width {width:.3g} mm, in {direction}",
         )
+
+
+#: A searched candidate is refined continuously only when its scan optimum already stands out at
+#: this false-alarm level (log10, Bonferroni over its trials): refinement costs tens of tests.
+REFINE_GATE_LOG10 = -2.0
+
+
+def _worth_refining(diagnosis: _Diagnosis, effect: Effect, trials: int) -> bool:
+    f_statistic, log10_p, detect, _ = diagnosis.tester.test(
+        effect.design(diagnosis.readings, diagnosis.model)
+    )
+    return detect > 0 and _corrected(log10_p, trials) < REFINE_GATE_LOG10
+
+
+def _refine_local(
+    diagnosis: _Diagnosis,
+    axis: str,
+    direction: str,
+    center: float,
+    width: float,
+    stroke: tuple[float, float],
+    narrowest: float,
+) -> tuple[float, float]:
+    """Place and width of a bump that remove the most of what the model leaves (Nelder–Mead on
+    the projected gain, from the scan's best)."""
+    from scipy.optimize import minimize
+
+    tester = diagnosis.tester
+    low, high = stroke
+
+    def loss(x: FloatArray) -> float:
+        c, log_w = float(x[0]), float(x[1])
+        w = float(np.exp(log_w))
+        if not (low <= c <= high and narrowest <= w <= 60.0):
+            return 0.0
+        bump = LocalDefect(axis, direction, c, w).design(diagnosis.readings, diagnosis.model)
+        return -tester.test(bump)[0]
+
+    start = np.array([center, np.log(width)])
+    result = minimize(
+        loss,
+        start,
+        method="Nelder-Mead",
+        options={
+            "xatol": 0.05,
+            "fatol": 1e-3,
+            "maxfev": 30,
+            "initial_simplex": [start, start + [width / 2.0, 0.0], start + [0.0, 0.4]],
+        },
+    )
+    if result.fun < loss(start):
+        return float(result.x[0]), float(np.exp(result.x[1]))
+    return center, width
 
 
 # --------------------------------------------------------------------------------------------
@@ -732,7 +822,7 @@ def unexplained(
     cross-validation, place and size come from its held-out residuals: a structure on one line is
     then sized as that line shows it, not as what is left after the fit bent the model towards it.
     """
-    from scipy import stats
+    from scipy import special
 
     readings = identification.readings
     held_out = identification.residual if cross_validation is None else cross_validation.residual
@@ -749,7 +839,7 @@ def unexplained(
         valid = n > 0
         means = sums[valid] / n[valid]
         chi2 = float(np.sum(means**2 * n[valid]) / sigma**2)
-        p_position = float(stats.chi2.sf(chi2, int(valid.sum())))
+        p_position = float(special.chdtrc(int(valid.sum()), chi2))
         shares = _shares(readings, identification.residual, index)
         p_time = _time_p_value(readings, identification.residual, index, sigma)
         if min(p_position, p_time) * count * 2 >= alpha:
@@ -844,13 +934,13 @@ def _time_fit(rest: FloatArray, time: FloatArray, target: FloatArray) -> FloatAr
 
 def _time_p_value(readings: Readings, residual: FloatArray, index: int, sigma: float) -> float:
     """False-alarm level of a drift over time within a line (F-like χ² of the time fit)."""
-    from scipy import stats
+    from scipy import special
 
     position, direction, rest, time = _line_parts(readings, residual, index)
     mask = readings.line == index
     fitted = _time_fit(rest, time, readings.target_mm[mask])
     chi2 = float(np.sum(fitted**2)) / sigma**2
-    return float(stats.chi2.sf(chi2, 4))
+    return float(special.chdtrc(4, chi2))
 
 
 # --------------------------------------------------------------------------------------------
@@ -935,6 +1025,9 @@ def _judge(
     if improvement < options.margin:
         reason += f"; below the {100 * options.margin:.0f} % margin: refused"
         return _Trial(finding, refit, cv_new, False, reason, parameters)
+    unrepeatable = _run_to_run(refit, index, options)
+    if unrepeatable is not None:
+        return _Trial(finding, refit, cv_new, False, f"{reason}; {unrepeatable}", parameters)
     fit_gain = _fit_metric(current) ** 2 - _fit_metric(refit) ** 2
     held_out_gain = before**2 - after**2
     confirmed = held_out_gain / fit_gain if fit_gain > 0 else 1.0
@@ -946,6 +1039,48 @@ def _judge(
         )
         return _Trial(finding, refit, cv_new, False, reason, parameters)
     return _Trial(finding, refit, cv_new, True, reason, parameters)
+
+
+def _run_to_run(refit: Identification, index: int, options: LoopOptions) -> str | None:
+    """Why a fitted effect is not a property of the machine or the set-up, or None.
+
+    Everything in the catalogue repeats from run to run at the same position (a drift through
+    its own time dependence): fitted run by run on the readings it moves, its size must agree
+    with the common fit within the noise. A structure whose size changes from run to run — a
+    reflector mount that twitches, a scale that oscillates in time — is not the effect, however
+    much of the residual the effect's shape happens to take.
+    """
+    system = refit.system
+    block = [b for b in system.blocks if b.kind == "effect"][index]
+    first = system.target_design.shape[1]  # effect columns follow the target columns
+    columns = slice(block.columns.start - first, block.columns.stop - first)
+    contribution = system.effect_design[:, columns] @ refit.effect_parameters[index]
+    readings = refit.readings
+    w = system.weights / refit.sigma_scale**2
+    signal = contribution + refit.residual
+    group = readings.line * 10_000 + readings.run
+    keys, inverse = np.unique(group, return_inverse=True)
+    energy = np.bincount(inverse, weights=w * contribution**2, minlength=keys.size)
+    # runs where the effect stands out at least 4 σ
+    strong = energy > 16.0
+    if strong.sum() < 3:
+        return None
+    projection = np.bincount(inverse, weights=w * contribution * signal, minlength=keys.size)
+    amplitude = projection[strong] / energy[strong]  # 1 where the run agrees with the fit
+    chi2 = float(np.sum((amplitude - 1.0) ** 2 * energy[strong]))
+    from scipy import special
+
+    dof = int(strong.sum()) - 1
+    with np.errstate(divide="ignore"):
+        log10_p = float(np.log10(max(special.chdtrc(dof, chi2), 1e-300)))
+    spread = float(np.std(amplitude))
+    if log10_p < options.repeatability_log10 and spread > options.repeatability_spread:
+        return (
+            f"not repeatable: fitted run by run its size varies by {100 * spread:.0f} % "
+            f"(χ² {chi2:.0f} on {dof} runs), far beyond the noise; it does not follow the "
+            "machine's position, so it is not this effect: refused"
+        )
+    return None
 
 
 def _cv_warnings(readings: Readings, cv: CrossValidation, redundant: Sequence[str]) -> list[str]:

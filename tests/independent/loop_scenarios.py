@@ -1,0 +1,384 @@
+"""Seeded random scenarios for the closed loop, and how volucal's answer is scored.
+
+A scenario is a random machine of :mod:`scenario_machine` on one of three plans (the demo plan,
+the paper's twelve-line plan, a sparse direct plan), with noise of 0.05–0.5 µm and either no
+effect, one to three catalogue effects of random kind, axis and size (0.5–5 µm), or one effect
+outside every catalogue. It is measured by the independent laser, written as .rtl/.rta logs with a
+plan.toml, and volucal imports those files and closes the loop with its shipped defaults — the
+user's path.
+
+Scoring compares what the loop kept with what the scenario carries, by (kind, axis) for machine
+effects and (kind, line) for set-up effects; an effect counts as *visible* when its share of some
+line's readings, less that line's zero (and alignment slope), reaches 4× the noise.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from scenario_machine import (
+    AXES,
+    Laser,
+    MachineEffect,
+    OutsideEffect,
+    Scenario,
+    SetupEffect,
+    measure,
+    random_rigid,
+    read_geometry,
+    write_session,
+)
+
+REPO = Path(__file__).resolve().parents[2]
+PLANS = {
+    "demo": (REPO / "resources" / "demo" / "plan.toml", 6.0, 2.0),
+    "twelve-line": (REPO / "resources" / "plans" / "twelve-line.toml", 12.0, 3.0),
+    "sparse": (REPO / "resources" / "plans" / "direct.toml", 8.0, 2.5),
+}
+MACHINE_KINDS = ("reversal", "cyclic", "thermal_drift", "cross_axis", "local")
+SETUP_KINDS = ("abbe_offset", "cosine")
+OUTSIDE_KINDS = ("oscillating_scale", "twitches", "random_walk", "rezero")
+#: Plausibility limits checked on what the loop keeps (independent of volucal's own check).
+ABBE_LIMIT_MM = 100.0
+COSINE_LIMIT_URAD = 5000.0
+VISIBLE_FACTOR = 4.0
+
+
+def make_scenario(seed: int, category: str | None = None) -> Scenario:
+    """A random scenario; ``category`` ("clean", "effects", "outside") or drawn (20/60/20 %)."""
+    rng = np.random.default_rng([seed, 271828])
+    plan = str(rng.choice(list(PLANS)))
+    path, step, jitter = PLANS[plan]
+    info, lines = read_geometry(path)
+    runs = int(rng.integers(3, 6))
+    laser = Laser(
+        runs_per_direction=runs,
+        noise=float(rng.uniform(0.05, 0.5)),
+        step_mm=step,
+        jitter_mm=jitter,
+        log_temperature=bool(rng.random() < 0.5),
+    )
+    machine = random_rigid(rng, info["stroke"], tuple(info["tool"]))
+    scenario = Scenario(seed, path, machine, laser)
+    if category is None:
+        category = str(rng.choice(["clean", "effects", "outside"], p=[0.2, 0.6, 0.2]))
+    session_s = _session_estimate(lines, laser)
+    if category == "effects":
+        count = int(rng.integers(1, 4))
+        taken: set[tuple[str, str]] = set()
+        while len(scenario.effects) + len(scenario.setups) < count:
+            _add_effect(rng, scenario, info, lines, session_s, taken)
+    elif category == "outside":
+        _add_outside(rng, scenario, info, lines, session_s)
+    scenario.category = category  # type: ignore[attr-defined]
+    scenario.plan_name = plan  # type: ignore[attr-defined]
+    return scenario
+
+
+def _session_estimate(lines, laser: Laser) -> float:  # type: ignore[no-untyped-def]
+    total = 0.0
+    for line in lines:
+        k = line.length / laser.step_mm + 1
+        total += (
+            2 * laser.runs_per_direction * k * (laser.dwell_s + laser.step_mm / laser.feed_mm_s)
+        )
+        total += sum(laser.setup_s) / 2
+    return total
+
+
+def _moving(lines, quantity: tuple[str, ...] = ("linear", "straightness")) -> list[str]:  # type: ignore[no-untyped-def]
+    return sorted(
+        {
+            AXES[k]
+            for line in lines
+            if line.quantity in quantity
+            for k in range(3)
+            if abs(line.direction[k]) > 1e-6
+        }
+    )
+
+
+def _add_effect(rng, scenario, info, lines, session_s, taken) -> None:  # type: ignore[no-untyped-def]
+    kind = str(rng.choice(MACHINE_KINDS + SETUP_KINDS))
+    size = float(rng.uniform(0.5, 5.0)) * float(rng.choice([-1.0, 1.0]))
+    stroke = info["stroke"]
+    axes = _moving(lines)
+    if kind in SETUP_KINDS:
+        quantities = ("linear",) if kind == "cosine" else ("linear", "straightness")
+        names = [line.name for line in lines if line.quantity in quantities]
+        if not names:
+            return
+        name = str(rng.choice(names))
+        if (kind, name) in taken:
+            return
+        taken.add((kind, name))
+        if kind == "cosine":
+            angle = float(rng.uniform(1600.0, 4500.0))
+            scenario.setups.append(SetupEffect(kind, name, {"angle_urad": angle}))
+        else:
+            offset = rng.normal(0.0, 1.0, 3)
+            offset *= float(rng.uniform(20.0, 80.0)) / np.linalg.norm(offset)
+            scenario.setups.append(
+                SetupEffect(kind, name, {"dx": offset[0], "dy": offset[1], "dz": offset[2]})
+            )
+        return
+    axis = str(rng.choice(axes))
+    low, high = stroke[axis]
+    if kind == "cross_axis":
+        axis = str(rng.choice(list(AXES)))
+    if (kind, axis) in taken:
+        return
+    taken.add((kind, axis))
+    if kind == "reversal":
+        varying = rng.random() < 0.3
+        b1 = float(rng.uniform(-0.5, 0.5)) * size if varying else 0.0
+        parameters: dict = {"b0": size, "b1": b1}
+    elif kind == "cyclic":
+        lead = float(info["screw_lead"].get(axis, 0.0))
+        shortest = max(2.5 * scenario.laser.step_mm, 6.0)
+        if lead >= shortest and rng.random() < 0.5:
+            period = lead
+        else:
+            period = float(rng.uniform(shortest, 60.0))
+        amp2 = float(rng.uniform(0.0, 0.3)) * abs(size) if rng.random() < 0.3 else 0.0
+        parameters = {
+            "amp": abs(size),
+            "period": period,
+            "phase": float(rng.uniform(0, 2 * np.pi)),
+            "amp2": amp2,
+        }
+    elif kind == "thermal_drift":
+        tau = float(rng.uniform(20.0, 240.0)) * 60.0
+        reach = (high - low) * 1e-3 * (1.0 - math.exp(-session_s / tau))
+        parameters = {"ppm": abs(size) / reach, "tau": tau}
+    elif kind == "cross_axis":
+        pair = rng.choice(list(AXES), 2, replace=False)
+        parameters = {
+            "amp": size,
+            "a": str(pair[0]),
+            "b": str(pair[1]),
+            "k_a": float(rng.uniform(0.8, 2.2)),
+            "k_b": float(rng.uniform(0.8, 2.2)),
+            "phi_a": float(rng.uniform(0, 2 * np.pi)),
+            "phi_b": float(rng.uniform(0, 2 * np.pi)),
+        }
+    else:  # local
+        others = [a for a in AXES if a != axis]
+        parameters = {
+            "amp": size,
+            "direction": str(rng.choice(others)),
+            "center": float(rng.uniform(low + 0.2 * (high - low), high - 0.2 * (high - low))),
+            "half_width": float(rng.uniform(8.0, 30.0)),
+        }
+    scenario.effects.append(MachineEffect(kind, axis, parameters))
+
+
+def _add_outside(rng, scenario, info, lines, session_s) -> None:  # type: ignore[no-untyped-def]
+    kind = str(rng.choice(OUTSIDE_KINDS))
+    size = float(rng.uniform(1.0, 4.0))
+    names = [line.name for line in lines if line.quantity != "angular"]
+    if kind == "oscillating_scale":
+        axis = str(rng.choice(_moving(lines, ("linear",))))
+        low, high = info["stroke"][axis]
+        scenario.effects.append(
+            MachineEffect(
+                kind,
+                axis,
+                {
+                    "ppm": size / ((high - low) * 1e-3),
+                    "period_s": float(rng.uniform(1800.0, 7200.0)),
+                    "phase": float(rng.uniform(0, 2 * np.pi)),
+                },
+            )
+        )
+        return
+    count = {"twitches": int(rng.integers(2, 5)), "random_walk": 2, "rezero": 1}[kind]
+    chosen = tuple(str(n) for n in rng.choice(names, min(count, len(names)), replace=False))
+    if kind == "twitches":
+        parameters = {"amp": size, "half_width": float(rng.uniform(10.0, 40.0))}
+    elif kind == "random_walk":
+        readings = 2 * scenario.laser.runs_per_direction * 40
+        parameters = {"step": size / math.sqrt(readings)}
+    else:
+        parameters = {"step_um": size}
+    scenario.outside.append(OutsideEffect(kind, chosen, parameters))
+
+
+# --------------------------------------------------------------------------------------------
+# Running and scoring
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Outcome:
+    seed: int
+    plan: str
+    category: str
+    noise: float
+    expected: set[tuple[str, str]]
+    visible: bool  # every injected catalogue effect reaches 4× the noise somewhere
+    kept: set[tuple[str, str]]
+    implausible: list[str]
+    unexplained: int
+    function_error: dict[str, float]  # identified functions: RMS difference (µm or µrad)
+    squareness_error: dict[str, float]  # µrad
+    seconds: float
+    warnings: int
+    effects_report: list = field(default_factory=list)
+
+    @property
+    def exact(self) -> bool:
+        return self.kept == self.expected
+
+    @property
+    def misses(self) -> set[tuple[str, str]]:
+        return self.expected - self.kept
+
+    @property
+    def false(self) -> set[tuple[str, str]]:
+        return self.kept - self.expected
+
+
+def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
+    """Measure, write the files, let volucal import them and close the loop; score."""
+    from volucal.core.io.plan import import_plan, load_plan
+    from volucal.core.residuals import close_loop
+
+    info, measured = measure(scenario, scenario.seed)
+    visible = all(
+        left >= VISIBLE_FACTOR * scenario.laser.noise for left in unabsorbed(scenario).values()
+    )
+    with tempfile.TemporaryDirectory(prefix="volucal-scenario-") as tmp:
+        plan_path = write_session(Path(folder or tmp), info, measured)
+        start = time.perf_counter()
+        measurement = import_plan(load_plan(plan_path)).measurement
+        result = close_loop(measurement)
+        seconds = time.perf_counter() - start
+    report = result.to_report()
+    kept = set()
+    implausible = []
+    for effect in report["effects"]:
+        p = effect["parameters"]
+        if effect["kind"] in SETUP_KINDS:
+            kept.add((effect["kind"], p["line"]))
+        elif effect["kind"] == "cross_axis":
+            pair = sorted(p["depends_on"])
+            kept.add((effect["kind"], f"{effect['axis']} over {pair[0]}×{pair[1]}"))
+        elif effect["kind"] == "local":
+            kept.add((effect["kind"], f"{effect['axis']} in {p['direction']}"))
+        else:
+            kept.add((effect["kind"], effect["axis"]))
+        if effect["kind"] == "abbe_offset" and max(abs(v) for v in p["offset_mm"]) > ABBE_LIMIT_MM:
+            implausible.append(f"abbe offset {p['offset_mm']}")
+        if effect["kind"] == "cosine" and (
+            p["angle_urad"] > COSINE_LIMIT_URAD or p["scale_ppm"] > 3 * p["scale_std_ppm"]
+        ):
+            implausible.append(f"cosine {p}")
+    function_error, squareness_error = _accuracy(scenario, result)
+    return Outcome(
+        scenario.seed,
+        scenario.plan_name,  # type: ignore[attr-defined]
+        scenario.category,  # type: ignore[attr-defined]
+        scenario.laser.noise,
+        scenario.expected,
+        visible,
+        kept,
+        implausible,
+        len(report["unexplained"]),
+        function_error,
+        squareness_error,
+        seconds,
+        len(report["warnings"]),
+        report["effects"],
+    )
+
+
+def unabsorbed(scenario: Scenario) -> dict[str, float]:
+    """Per catalogue effect: the peak of what it leaves in the residual of volucal's 21-error
+    identification (no loop) when the machine has that effect alone, no other error and no noise.
+
+    An effect the 21 errors absorb entirely on this plan (a thermal drift of an axis that one line
+    measures once, a cosine error of a line nothing else checks) is not missing from the model
+    for this plan; the loop can only be asked to find what the rigid body leaves.
+    """
+    from volucal.core.identify import IdentifyOptions, identify
+    from volucal.core.io.plan import import_plan, load_plan
+
+    zero = {
+        eid: (lambda q: np.zeros_like(np.asarray(q, float))) for eid in scenario.machine.functions
+    }
+    rigid = replace(
+        scenario.machine, functions=zero, squareness=dict.fromkeys(scenario.machine.squareness, 0.0)
+    )
+    laser = replace(scenario.laser, noise=0.0, alignment_urad=0.0)
+    out = {}
+    singles = [
+        (f"{e.kind} {e.where}", [e], []) for e in scenario.effects if e.kind in MACHINE_KINDS
+    ]
+    singles += [(f"{s.kind} {s.line}", [], [s]) for s in scenario.setups]
+    for label, effects, setups in singles:
+        alone = Scenario(scenario.seed, scenario.plan_path, rigid, laser, effects, setups)
+        info, measured = measure(alone, scenario.seed)
+        with tempfile.TemporaryDirectory(prefix="volucal-visible-") as tmp:
+            measurement = import_plan(
+                load_plan(write_session(Path(tmp), info, measured))
+            ).measurement
+        fit = identify(measurement, IdentifyOptions(redundancy=False))
+        out[label] = float(np.max(np.abs(fit.residual)))
+    return out
+
+
+def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, float]]:  # type: ignore[no-untyped-def]
+    """RMS difference of every identified error function from the truth (both in the gauge),
+    and the squareness differences."""
+    model = result.final.model
+    identified = set(result.base.identifiability.identified_ids)
+    functions = {}
+    for eid, truth in scenario.machine.functions.items():
+        if eid not in identified:
+            continue
+        axis = eid[2]
+        low, high = scenario.machine.stroke[axis]
+        q = np.linspace(low, high, 81)
+        difference = model.functions[eid](q) - truth(q)
+        functions[eid] = float(np.sqrt(np.mean(difference**2)))
+    squareness = {
+        sid: abs(model.squareness_urad[sid] - value)
+        for sid, value in scenario.machine.squareness.items()
+        if sid in identified
+    }
+    return functions, squareness
+
+
+def summarise(outcomes: list[Outcome]) -> dict[str, object]:
+    """The figures issue 12 asks for."""
+    eligible = [o for o in outcomes if o.category == "effects" and o.visible]
+    clean = [o for o in outcomes if o.category == "clean"]
+    outside = [o for o in outcomes if o.category == "outside"]
+    exact = [o for o in eligible if o.exact]
+    worst_function = max(
+        (max(o.function_error.values(), default=0.0) for o in exact + clean if o.exact),
+        default=0.0,
+    )
+    worst_square = max(
+        (max(o.squareness_error.values(), default=0.0) for o in exact + clean if o.exact),
+        default=0.0,
+    )
+    return {
+        "scenarios": len(outcomes),
+        "eligible_with_effects": len(eligible),
+        "exact_share": len(exact) / max(len(eligible), 1),
+        "clean": len(clean),
+        "clean_with_kept_effect": sum(bool(o.kept) for o in clean),
+        "outside": len(outside),
+        "outside_force_fits": sum(bool(o.kept) for o in outside),
+        "outside_reported_unexplained": sum(o.unexplained > 0 for o in outside),
+        "implausible_kept": sum(len(o.implausible) for o in outcomes),
+        "worst_function_error": worst_function,
+        "worst_squareness_error_urad": worst_square,
+    }
