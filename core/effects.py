@@ -350,13 +350,17 @@ class CrossAxis(Effect):
     """Error along ``direction`` that depends on two axes at once (sag, twist of a table, a
     guideway that bends with the load): a smooth function of both positions,
 
-        f(q_a, q_b) = Σ c_ij · P_i(s) · P_j(t),   i ≥ 1, j ≥ 1, i + j ≤ order,
+        f(q_a, q_b) = Σ c_ij · P_i(s) · P_j(t),   i ≥ m, j ≥ m, i + j ≤ order,
 
     with P the Legendre polynomials and s, t the two positions scaled to [−1, 1] over their
-    strokes. Products only: what depends on one axis alone is the error functions' part. The
-    rigid body holds some products too (a roll of X times the Y position is s·t in EZ); the loop's
-    test projects those out, so only what no rigid body produces is evidence. The order is chosen
-    by cross-validation among the candidates (3 and 4 by default).
+    strokes. What depends on one axis alone is the error functions' part, and a product with a
+    linear factor in either position looks like an angular error times a lever arm (a roll of X
+    times the Y position is f(x)·y in EZ). By default (m = 2) the surface holds only what no rigid
+    body produces, so it cannot trade with the 21 errors. With ``lever_terms`` (m = 1) it also
+    holds the linear-factor products: a carriage that is not rigid shows one roll on the angular
+    line and another between straightness lines at different offsets; the loop's test projects
+    out what the 21 errors can take, so only the contradiction is evidence. The family and the
+    order are chosen by cross-validation among the candidates.
     """
 
     direction: str = "Z"
@@ -364,6 +368,7 @@ class CrossAxis(Effect):
     across: str = "Y"
     machine: Machine | None = None
     order: int = 4
+    lever_terms: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kind", "cross_axis")
@@ -374,14 +379,15 @@ class CrossAxis(Effect):
 
     @property
     def label(self) -> str:
-        return f"cross-axis E{self.direction} over {self.along}×{self.across} (order {self.order})"
+        lever = ", with lever-arm terms" if self.lever_terms else ""
+        return f"cross-axis E{self.direction} over {self.along}×{self.across} (order {self.order}{lever})"
 
     def _terms(self) -> list[tuple[int, int]]:
+        lowest = 1 if self.lever_terms else 2
         return [
-            (i, j)
-            for total in range(2, self.order + 1)
-            for i in range(1, total)
-            for j in (total - i,)
+            (i, total - i)
+            for total in range(2 * lowest, self.order + 1)
+            for i in range(lowest, total - lowest + 1)
         ]
 
     def _scaled(self, q: FloatArray, axis: str) -> FloatArray:
@@ -422,6 +428,7 @@ class CrossAxis(Effect):
         return {
             "depends_on": [self.along, self.across],
             "order": self.order,
+            "lever_terms": self.lever_terms,
             "terms": [f"P{i}({self.along})·P{j}({self.across})" for i, j in self._terms()],
             "coefficients_um": [float(v) for v in values],
             "coefficients_std_um": [_std(covariance, i) for i in range(len(values))],

@@ -97,6 +97,8 @@ class LoopOptions:
         varies beyond the noise at this false-alarm level (log10) and by more than this share
         is refused (:func:`_run_to_run`).
     time_constants_s : the range over which a time-driven drift's τ is estimated.
+    cross_axis_orders, cross_axis_lever_orders : the total degrees tried for a cross-axis
+        surface without and with lever-arm terms (:class:`CrossAxis`; chosen by cross-validation).
     """
 
     alpha: float = 1e-4
@@ -111,7 +113,8 @@ class LoopOptions:
     repeatability_log10: float = -6.0
     repeatability_spread: float = 0.1
     time_constants_s: tuple[float, float] = (300.0, 7 * 86400.0)
-    cross_axis_orders: tuple[int, ...] = (3, 4)
+    cross_axis_orders: tuple[int, ...] = (4, 5, 6)
+    cross_axis_lever_orders: tuple[int, ...] = (3, 4)
     plausibility: Plausibility = field(default_factory=Plausibility)
     identify: IdentifyOptions = field(default_factory=IdentifyOptions)
 
@@ -516,6 +519,8 @@ def diagnose(
             for across in AXES[i + 1 :]:
                 for order in options.cross_axis_orders:
                     diagnosis.add(CrossAxis(direction, along, across, machine, order))
+                for order in options.cross_axis_lever_orders:
+                    diagnosis.add(CrossAxis(direction, along, across, machine, order, True))
     for eid in AXIS_ERROR_IDS:
         basis = model.functions[eid].basis
         spacing = getattr(basis, "breakpoints_mm", None)
@@ -1046,9 +1051,11 @@ def _run_to_run(refit: Identification, index: int, options: LoopOptions) -> str 
 
     Everything in the catalogue repeats from run to run at the same position (a drift through
     its own time dependence): fitted run by run on the readings it moves, its size must agree
-    with the common fit within the noise. A structure whose size changes from run to run — a
-    reflector mount that twitches, a scale that oscillates in time — is not the effect, however
-    much of the residual the effect's shape happens to take.
+    between the runs of one line within the noise. A structure whose size changes from run to
+    run — a reflector mount that twitches, a scale that oscillates in time — is not the effect,
+    however much of the residual the effect's shape happens to take. Runs are compared with
+    their own line's mean: a shape that fits one line better than another is a question for the
+    cross-validation, not for repeatability.
     """
     system = refit.system
     block = [b for b in system.blocks if b.kind == "effect"][index]
@@ -1066,19 +1073,27 @@ def _run_to_run(refit: Identification, index: int, options: LoopOptions) -> str 
     if strong.sum() < 3:
         return None
     projection = np.bincount(inverse, weights=w * contribution * signal, minlength=keys.size)
-    amplitude = projection[strong] / energy[strong]  # 1 where the run agrees with the fit
-    chi2 = float(np.sum((amplitude - 1.0) ** 2 * energy[strong]))
+    amplitude = projection[strong] / energy[strong]  # the run's size relative to the fit
+    weight = energy[strong]
+    _, line_of = np.unique(keys[strong] // 10_000, return_inverse=True)
+    line_weight = np.bincount(line_of, weights=weight)
+    line_mean = np.bincount(line_of, weights=weight * amplitude) / line_weight
+    deviation = amplitude - line_mean[line_of]
+    dof = int(strong.sum()) - int(line_weight.size)
+    if dof < 2:
+        return None
+    chi2 = float(np.sum(deviation**2 * weight))
     from scipy import special
 
-    dof = int(strong.sum()) - 1
     with np.errstate(divide="ignore"):
         log10_p = float(np.log10(max(special.chdtrc(dof, chi2), 1e-300)))
-    spread = float(np.std(amplitude))
+    spread = float(np.sqrt(np.sum(weight * deviation**2) / np.sum(weight)))
     if log10_p < options.repeatability_log10 and spread > options.repeatability_spread:
         return (
             f"not repeatable: fitted run by run its size varies by {100 * spread:.0f} % "
-            f"(χ² {chi2:.0f} on {dof} runs), far beyond the noise; it does not follow the "
-            "machine's position, so it is not this effect: refused"
+            f"between the runs of a line (χ² {chi2:.0f} on {dof} degrees of freedom), far "
+            "beyond the noise; it does not follow the machine's position, so it is not this "
+            "effect: refused"
         )
     return None
 

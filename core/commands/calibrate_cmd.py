@@ -82,6 +82,9 @@ def run(
     if args.json:
         json.dump(_jsonable(result.report), sys.stdout, indent=2)
         print()
+        # stdout is the report; what a user must read still reaches the console
+        for warning in result.report.get("warnings", []):
+            print(f"warning: {warning}", file=sys.stderr)
     else:
         print(summary_table(result.report))
         if extra:

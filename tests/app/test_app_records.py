@@ -151,7 +151,7 @@ def test_effect_json_has_the_constructor_fields():
     entry = effect_to_json(effect)
     assert entry["class"] == "Cyclic"
     assert entry["fields"] == {"axis_name": "Y", "period_mm": 16.0, "harmonics": [1, 2],
-                               "reference_mm": 0.0}
+                               "reference_mm": 0.0, "period_searched": False}
     reversal = effect_to_json(Reversal(axis_name="X", order=1, stroke_mm=(0.0, 400.0)))
     assert reversal["fields"]["stroke_mm"] == [0.0, 400.0]
 
