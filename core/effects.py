@@ -380,7 +380,8 @@ class CrossAxis(Effect):
     @property
     def label(self) -> str:
         lever = ", with lever-arm terms" if self.lever_terms else ""
-        return f"cross-axis E{self.direction} over {self.along}×{self.across} (order {self.order}{lever})"
+        pair = f"{self.along}×{self.across}"
+        return f"cross-axis E{self.direction} over {pair} (order {self.order}{lever})"
 
     def _terms(self) -> list[tuple[int, int]]:
         lowest = 1 if self.lever_terms else 2
