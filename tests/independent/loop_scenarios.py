@@ -230,6 +230,23 @@ class Outcome:
     seconds: float
     warnings: int
     effects_report: list = field(default_factory=list)
+    #: per injected catalogue effect ("kind where"): what it leaves in the 21-error residual,
+    #: in units of the noise
+    visibility: dict[str, float] = field(default_factory=dict)
+    #: largest RMS ratio of a function's error to its stated standard uncertainty
+    band_ratio: float = 0.0
+
+    @property
+    def visible_expected(self) -> set[tuple[str, str]]:
+        return {
+            e for e in self.expected if self.visibility.get(f"{e[0]} {e[1]}", 0.0) >= VISIBLE_FACTOR
+        }
+
+    @property
+    def right_on_what_is_visible(self) -> bool:
+        """Every visible effect kept and nothing kept that was not injected (an effect the
+        21 errors absorb on this plan may be found or not)."""
+        return self.visible_expected <= self.kept <= self.expected
 
     @property
     def exact(self) -> bool:
@@ -244,22 +261,9 @@ class Outcome:
         return self.kept - self.expected
 
 
-def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
-    """Measure, write the files, let volucal import them and close the loop; score."""
-    from volucal.core.io.plan import import_plan, load_plan
-    from volucal.core.residuals import close_loop
-
-    info, measured = measure(scenario, scenario.seed)
-    visible = all(
-        left >= VISIBLE_FACTOR * scenario.laser.noise for left in unabsorbed(scenario).values()
-    )
-    with tempfile.TemporaryDirectory(prefix="volucal-scenario-") as tmp:
-        plan_path = write_session(Path(folder or tmp), info, measured)
-        start = time.perf_counter()
-        measurement = import_plan(load_plan(plan_path)).measurement
-        result = close_loop(measurement)
-        seconds = time.perf_counter() - start
-    report = result.to_report()
+def kept_effects(report: dict) -> tuple[set[tuple[str, str]], list[str]]:
+    """What the loop kept, as (kind, where) like :attr:`Scenario.expected`, and the kept
+    effects whose parameters no real set-up allows (checked here, not by volucal)."""
     kept = set()
     implausible = []
     for effect in report["effects"]:
@@ -279,14 +283,34 @@ def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
             p["angle_urad"] > COSINE_LIMIT_URAD or p["scale_ppm"] > 3 * p["scale_std_ppm"]
         ):
             implausible.append(f"cosine {p}")
-    function_error, squareness_error = _accuracy(scenario, result)
+    return kept, implausible
+
+
+def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
+    """Measure, write the files, let volucal import them and close the loop; score."""
+    from volucal.core.io.plan import import_plan, load_plan
+    from volucal.core.residuals import close_loop
+
+    info, measured = measure(scenario, scenario.seed)
+    with tempfile.TemporaryDirectory(prefix="volucal-scenario-") as tmp:
+        plan_path = write_session(Path(folder or tmp), info, measured)
+        start = time.perf_counter()
+        measurement = import_plan(load_plan(plan_path)).measurement
+        result = close_loop(measurement)
+        seconds = time.perf_counter() - start
+    report = result.to_report()
+    kept, implausible = kept_effects(report)
+    function_error, squareness_error, band_ratio = _accuracy(scenario, result)
+    visibility = {
+        label: value / scenario.laser.noise for label, value in unabsorbed(scenario).items()
+    }
     return Outcome(
         scenario.seed,
         scenario.plan_name,  # type: ignore[attr-defined]
         scenario.category,  # type: ignore[attr-defined]
         scenario.laser.noise,
         scenario.expected,
-        visible,
+        all(v >= VISIBLE_FACTOR for v in visibility.values()),
         kept,
         implausible,
         len(report["unexplained"]),
@@ -295,6 +319,8 @@ def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
         seconds,
         len(report["warnings"]),
         report["effects"],
+        visibility,
+        band_ratio,
     )
 
 
@@ -333,26 +359,85 @@ def unabsorbed(scenario: Scenario) -> dict[str, float]:
     return out
 
 
-def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, float]]:  # type: ignore[no-untyped-def]
-    """RMS difference of every identified error function from the truth (both in the gauge),
-    and the squareness differences."""
+def _gauged(values: np.ndarray, q: np.ndarray, straightness: bool) -> np.ndarray:
+    """A function with its gauge removed: zero at the stroke start and, for a straightness,
+    zero least-squares slope (DESIGN.md "Gauges")."""
+    if straightness:
+        slope, _ = np.polyfit(q, values, 1)
+        values = values - slope * q
+    return values - values[0]
+
+
+def _single_axis_truth(scenario: Scenario, eid: str, q: np.ndarray) -> np.ndarray:
+    """The truth's part of error ``eid`` (E<d><a>) that depends on axis a alone: the function
+    plus its cycles and local defects (the split between a smooth function and a local shape is
+    a matter of basis; their sum is the machine's error)."""
+    total = scenario.machine.functions[eid](q).astype(float)
+    if eid[1] not in AXES:  # an angle: no effect of the catalogue changes it
+        return total
+    d, a = AXES.index(eid[1]), eid[2]
+    states = np.zeros((len(q), 3))
+    states[:, AXES.index(a)] = q
+    for effect in scenario.effects:
+        single = (effect.kind == "cyclic" and effect.target == a and eid[1] == a) or (
+            effect.kind == "local"
+            and effect.target == a
+            and effect.parameters["direction"] == eid[1]
+        )
+        if single:
+            error = effect.error_um(scenario.machine.stroke, states, np.zeros_like(states), q * 0)
+            total = total + error[:, d]
+    return total
+
+
+def _single_axis_model(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
+    """volucal's counterpart of :func:`_single_axis_truth`, and the function's standard
+    uncertainty (statistical part) at q."""
     model = result.final.model
+    total = model.functions[eid](q).astype(float)
+    if eid[1] in AXES:
+        d, a = AXES.index(eid[1]), eid[2]
+        states = np.zeros((len(q), 3))
+        states[:, AXES.index(a)] = q
+        for effect, values in zip(
+            result.final.effects, result.final.effect_parameters, strict=True
+        ):
+            if effect.kind in ("cyclic", "local") and effect.axis == a:
+                total = total + effect.error_um(values, model.machine, states)[:, d]
+    sl = model.parameter_slices[eid]
+    design = model.functions[eid].basis.design(q)
+    variance = np.einsum("ij,jk,ik->i", design, result.final.covariance[sl, sl], design)
+    return total, np.sqrt(np.maximum(variance, 0.0))
+
+
+def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, float], float]:  # type: ignore[no-untyped-def]
+    """Per identified error function: RMS difference from the truth with the gauges removed
+    (µm or µrad; cycles and local defects folded into the function they change, in both); per
+    squareness: the difference (µrad); and the largest RMS ratio of a function's difference to
+    its stated standard uncertainty (how honest the bands are)."""
     identified = set(result.base.identifiability.identified_ids)
     functions = {}
-    for eid, truth in scenario.machine.functions.items():
+    worst_ratio = 0.0
+    for eid in scenario.machine.functions:
         if eid not in identified:
             continue
-        axis = eid[2]
-        low, high = scenario.machine.stroke[axis]
-        q = np.linspace(low, high, 81)
-        difference = model.functions[eid](q) - truth(q)
+        low, high = scenario.machine.stroke[eid[2]]
+        q = np.linspace(low, high, 161)
+        straightness = eid[1] in AXES and eid[1] != eid[2]
+        truth = _gauged(_single_axis_truth(scenario, eid, q), q, straightness)
+        model, std = _single_axis_model(result, eid, q)
+        difference = _gauged(model, q, straightness) - truth
         functions[eid] = float(np.sqrt(np.mean(difference**2)))
+        spread = float(np.sqrt(np.mean(std**2)))
+        if spread > 0:
+            worst_ratio = max(worst_ratio, functions[eid] / spread)
+    model = result.final.model
     squareness = {
         sid: abs(model.squareness_urad[sid] - value)
         for sid, value in scenario.machine.squareness.items()
         if sid in identified
     }
-    return functions, squareness
+    return functions, squareness, worst_ratio
 
 
 def summarise(outcomes: list[Outcome]) -> dict[str, object]:

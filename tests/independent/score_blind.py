@@ -1,0 +1,108 @@
+"""volucal's closed loop on the blind generator's scenarios (tests/blind), scored like
+:mod:`loop_scenarios`: the generator wrote the files and a truth manifest without knowing the
+method; this module only reads the manifest.
+
+A catalogue effect counts as *visible* when what the generator's own rigid-body fit leaves of it
+(``after_rigid_fit_peak``) reaches 4× the noise, the bar of :mod:`loop_scenarios`; the
+generator's own, lower bar (2.5× the noise, at least 0.4 µm) is kept beside it.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from loop_scenarios import VISIBLE_FACTOR, Outcome, _gauged, kept_effects
+
+from tests.blind.scenarios import build_scenario, write_scenario
+
+
+def _where(effect: dict) -> tuple[str, str]:
+    kind = effect["kind"]
+    if kind in ("abbe_offset", "cosine"):
+        return kind, effect["line"]
+    if kind == "cross_axis":
+        pair = sorted(effect["depends_on"])
+        return kind, f"{effect['axis']} over {pair[0]}×{pair[1]}"
+    if kind == "local":
+        return kind, f"{effect['axis']} in {effect['direction']}"
+    return kind, effect["axis"]
+
+
+def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[str, float], float]:  # type: ignore[no-untyped-def]
+    """As :func:`loop_scenarios._accuracy`, against the manifest: every identified function with
+    its gauge removed, cycles and local defects folded into the function they change (the
+    generator's and volucal's alike)."""
+    from loop_scenarios import _single_axis_model
+
+    single = {}
+    for effect in build_scenario(seed).effects:
+        if effect.kind in ("cyclic", "local"):
+            eid = f"E{getattr(effect, 'direction', effect.axis)}{effect.axis}"
+            single.setdefault(eid, []).append(effect)
+    identified = set(result.base.identifiability.identified_ids)
+    functions = {}
+    worst_ratio = 0.0
+    for eid, table in truth["machine"]["functions"].items():
+        if eid not in identified:
+            continue
+        q = np.asarray(table["position_mm"], float)
+        straightness = table["kind"] == "straightness"
+        value = np.asarray(table["value"], float)
+        for effect in single.get(eid, ()):
+            value = value + effect.value(q)
+        model, std = _single_axis_model(result, eid, q)
+        difference = _gauged(model, q, straightness) - _gauged(value, q, straightness)
+        functions[eid] = float(np.sqrt(np.mean(difference**2)))
+        spread = float(np.sqrt(np.mean(std**2)))
+        if spread > 0:
+            worst_ratio = max(worst_ratio, functions[eid] / spread)
+    model = result.final.model
+    squareness = {
+        sid: abs(model.squareness_urad[sid] - value)
+        for sid, value in truth["machine"]["squareness_urad"].items()
+        if sid in identified
+    }
+    return functions, squareness, worst_ratio
+
+
+def run_blind(seed: int) -> Outcome:
+    """Write the blind scenario ``seed``, import it with volucal, close the loop, score."""
+    from volucal.core.io.plan import import_plan, load_plan
+    from volucal.core.residuals import close_loop
+
+    with tempfile.TemporaryDirectory(prefix="volucal-blind-") as tmp:
+        plan_path, truth = write_scenario(seed, tmp)
+        start = time.perf_counter()
+        measurement = import_plan(load_plan(plan_path)).measurement
+        result = close_loop(measurement)
+        seconds = time.perf_counter() - start
+    report = result.to_report()
+    kept, implausible = kept_effects(report)
+    noise = float(truth["noise"]["sigma_um"])
+    catalogue = [e for e in truth["effects"] if not e["kind"].startswith("outside:")]
+    visibility = {
+        " ".join(_where(e)): float(e["visibility"]["after_rigid_fit_peak"]) / noise
+        for e in catalogue
+    }
+    function_error, squareness_error, band_ratio = _accuracy(seed, truth, result)
+    return Outcome(
+        seed,
+        Path(truth["plan"]["source"]).stem,
+        truth["category"],
+        noise,
+        {_where(e) for e in catalogue},
+        all(v >= VISIBLE_FACTOR for v in visibility.values()),
+        kept,
+        implausible,
+        len(report["unexplained"]),
+        function_error,
+        squareness_error,
+        seconds,
+        len(report["warnings"]),
+        report["effects"],
+        visibility,
+        band_ratio,
+    )
