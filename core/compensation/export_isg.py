@@ -132,8 +132,8 @@ def export(context: ExportContext) -> ExporterOutput:
         text += [f"kw.ssfk.table[{i}].pos           {v}" for i, v in enumerate(pos)]
         text += [f"kw.ssfk.table[{i}].neg           {v}" for i, v in enumerate(neg)]
         files.append(write_text(context.out_dir / f"achskw_{axis}.lis", "\n".join(text) + "\n"))
-        loaded.append(LoadedTable(axis, axis, nodes, -pos * TENTH_UM, direction=1))
-        loaded.append(LoadedTable(axis, axis, nodes, -neg * TENTH_UM, direction=-1))
+        loaded.append(LoadedTable(axis, axis, nodes, (-pos * TENTH_UM).astype(np.float64), 1))
+        loaded.append(LoadedTable(axis, axis, nodes, (-neg * TENTH_UM).astype(np.float64), -1))
     if loaded:
         notes.append("achskw_<axis>.lis: activate with P-AXIS-00175 lr_param.ssfk = 1")
     volumetric = ExactCompensation(loaded_model, tables.tool_offset_mm)

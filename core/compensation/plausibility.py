@@ -132,9 +132,9 @@ def check_plausible(format: str, applied: Iterable[AppliedValues],
             column = int(np.argmax(np.abs(flat[row])))
             found.append(LargeCorrection(item.label, _where(item, int(row)),
                                          float(flat[row, column])))
-    if found:
+    if found and limit is not None:
         found.sort(key=lambda c: -abs(c.value_um))
-        raise LargeCorrectionError(format, float(limit), tuple(found[:KEPT]), count)
+        raise LargeCorrectionError(format, limit, tuple(found[:KEPT]), count)
 
 
 def table_values(label: str, axis: str, positions_mm: ArrayLike,
