@@ -211,7 +211,8 @@ def export_model(
         raise UserError(f"{out}: cannot create the output folder ({exc.strerror})") from None
     report(progress, 0.0, "computing tables")
     tables = build_tables(error_source, options.table_request(), cancel=cancel)
-    kinds = tuple(k for k in CARRIED[format] if k != "cross" or options.include_cross)
+    kinds = tuple(k for k in CARRIED.get(format, ("axis", "cross", "grid"))
+                  if k != "cross" or options.include_cross)
     check_plausible(format, table_kinds_values(tables, kinds), options.max_correction_um)
     written = tables
     if format == "fanuc":

@@ -140,8 +140,10 @@ def test_a_refused_export_leaves_the_previous_one_intact(tmp_path) -> None:
 
 def test_every_controller_format_has_a_documented_limit_table() -> None:
     docs = (Path(__file__).resolve().parents[2] / "docs" / "compensation.md").read_text()
+    # a new export format must state its limits (or that it has none) before it can export
+    assert set(FORMATS) == set(LIMITS)
     for fmt, limits in LIMITS.items():
-        assert fmt in FORMATS
+        assert f"`{fmt}`" in docs
         if limits.points is not None:
             assert f"{int(limits.points.value)}" in docs
     assert "not confirmed" in docs
