@@ -107,8 +107,8 @@ LIMITS: Mapping[str, FormatLimits] = {
         controller="Fanuc pitch error compensation",
         points=Limit(1024, "point numbers 0 to 1023 (parameters 3620-3622, Series 0i/16i/18i)",
                      False),
-        points_ceiling=Limit(1024, "point numbers 0 to 1023 (parameters 3620-3622, Series "
-                             "0i/16i/18i)", False),
+        points_ceiling=Limit(1024, "point numbers 0 to 1023, parameters 3620-3622 on Series "
+                             "0i/16i/18i", False),
         value_range=(-128, 127),
         value_unit="detection units x parameter 3623 per point",
         value_source="per-point setting range -128 to 127, magnification 3623 up to 100",
@@ -234,7 +234,7 @@ def check_sizes(
             raise UserError(
                 f"--grid-spacing {grid_spacing_mm:g} mm gives a grid of "
                 f"{' x '.join(str(c) for c in counts)} = {total:,} nodes (about "
-                f"{total * 1e3 / 1e9:.3g} GB to compute); volucal computes at most "
+                f"{total * 1e3 / 1e9:,.1f} GB to compute); volucal computes at most "
                 f"{MAX_GRID_POINTS:,}: use a spacing of at least {grid_spacing_fit(extents):g} mm"
             )
 
