@@ -63,4 +63,3 @@ def test_bad_options_show_a_message(qtbot, window):
     assert [d.text() for d in dialogs] == ["axis names: expected X=NAME,Y=NAME,Z=NAME, got 'Q=1'"]
     assert not view.runner.busy
     dialogs[0].close()
-
