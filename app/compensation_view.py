@@ -9,6 +9,7 @@ for the same project, identification and options they are identical to the CLI's
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ from PySide6.QtWidgets import (
     QLabel,
     QLineEdit,
     QListWidget,
+    QMessageBox,
     QPlainTextEdit,
     QPushButton,
     QSpinBox,
@@ -38,7 +40,7 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
     QWidget,
 )
-from volucal.core.compensation import ExportOptions
+from volucal.core.compensation import ExportOptions, LargeCorrectionError
 from volucal.core.compensation.export import FORMAT_HELP
 from volucal.core.machine import AXES
 from volucal.core.userror import UserError
@@ -65,6 +67,7 @@ class CompensationView(View):
         self.setObjectName("compensationView")
         prefs = Preferences.load()
         self.preview: jobs.ExportPreview | None = None
+        self.large_dialog: QMessageBox | None = None
 
         self.identification_box = QComboBox()
         self.identification_box.setObjectName("exportIdentification")
@@ -284,10 +287,10 @@ class CompensationView(View):
 
     # ---- running -------------------------------------------------------------------------------
 
-    def run_preview(self) -> None:
+    def run_preview(self, allow_large: bool = False) -> None:
         try:
             source, name, effects = self._source()
-            options = self.options()
+            options = self._with_limit(self.options(), allow_large)
         except (UserError, ValueError) as exc:
             self.task_failed(str(exc))
             return
@@ -295,8 +298,10 @@ class CompensationView(View):
         self.status.setText(f"computing the {fmt} tables…")
         self.run_task(
             f"{fmt} preview",
-            lambda progress, cancel: jobs.preview_export(source, fmt, options, progress, cancel),
-            lambda preview: self._previewed(preview, name, effects, None),
+            _large_as_value(lambda progress, cancel: jobs.preview_export(
+                source, fmt, options, progress, cancel)),
+            lambda preview: self._ask_large(preview, lambda: self.run_preview(True))
+            or self._previewed(preview, name, effects, None),
             on_cancel=lambda: self.status.setText("preview cancelled"),
         )
 
@@ -305,11 +310,15 @@ class CompensationView(View):
         if folder:
             self.export_to(Path(folder))
 
-    def export_to(self, folder: Path) -> None:
-        """Write the export into ``folder`` (in a worker) and record it in the project."""
+    def export_to(self, folder: Path, allow_large: bool = False) -> None:
+        """Write the export into ``folder`` (in a worker) and record it in the project.
+
+        Corrections beyond the plausibility limit are written only after the user confirms
+        them (:meth:`_ask_large`), which exports again with ``allow_large``.
+        """
         try:
             source, name, effects = self._source()
-            options = self.options()
+            options = self._with_limit(self.options(), allow_large)
         except (UserError, ValueError) as exc:
             self.task_failed(str(exc))
             return
@@ -317,11 +326,44 @@ class CompensationView(View):
         self.status.setText(f"writing the {fmt} files…")
         self.run_task(
             f"{fmt} export",
-            lambda progress, cancel: jobs.write_export(source, fmt, folder, options, progress,
-                                                       cancel),
-            lambda preview: self._previewed(preview, name, effects, folder),
+            _large_as_value(lambda progress, cancel: jobs.write_export(
+                source, fmt, folder, options, progress, cancel)),
+            lambda preview: self._ask_large(preview, lambda: self.export_to(folder, True))
+            or self._previewed(preview, name, effects, folder),
             on_cancel=lambda: self.status.setText("export cancelled"),
         )
+
+    @staticmethod
+    def _with_limit(options: ExportOptions, allow_large: bool) -> ExportOptions:
+        return dataclasses.replace(options, max_correction_um=None) if allow_large else options
+
+    def _ask_large(self, outcome: object, again: Any) -> bool:
+        """When the export was refused for large corrections, ask whether to write it anyway
+        (``again`` does); True when it was refused."""
+        if not isinstance(outcome, LargeCorrectionError):
+            return False
+        self.status.setText("not exported: corrections beyond the plausibility limit")
+        points = "\n".join(f"  {c}" for c in outcome.corrections[:5])
+        box = QMessageBox(
+            QMessageBox.Icon.Warning, f"{self.title}: large corrections",
+            f"The {outcome.format} export would apply corrections larger than "
+            f"{outcome.limit_um:g} µm at {outcome.count:,} point(s), the largest:\n{points}\n\n"
+            "A machine tool rarely needs that much: check the identification first. "
+            "Export these corrections anyway?",
+            QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No, self,
+        )
+        box.setObjectName("largeCorrectionsDialog")
+        box.setDefaultButton(QMessageBox.StandardButton.No)
+        box.setDetailedText("\n".join(str(c) for c in outcome.corrections))
+
+        def answered(_: int) -> None:
+            if box.clickedButton() is box.button(QMessageBox.StandardButton.Yes):
+                again()
+
+        box.finished.connect(answered)
+        self.large_dialog = box
+        box.open()
+        return True
 
     def _previewed(self, preview: jobs.ExportPreview, identification: str, with_effects: bool,
                    folder: Path | None) -> None:
@@ -460,6 +502,18 @@ class CompensationView(View):
         plots.category_ticks(item.getAxis("bottom"), [f"E{a}" for a in AXES])
         # headroom above the bars for the legend
         item.setYRange(0.0, 1.6 * max(max(before), 1e-6), padding=0)
+
+
+def _large_as_value(call: Any) -> Any:
+    """The worker hands a LargeCorrectionError back as a result (the view asks the user), every
+    other error as an error."""
+    def run(progress: Any, cancel: Any) -> Any:
+        try:
+            return call(progress, cancel)
+        except LargeCorrectionError as exc:
+            return exc
+
+    return run
 
 
 def _spin(value: float, low: float, high: float, suffix: str) -> QDoubleSpinBox:

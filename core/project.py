@@ -31,6 +31,14 @@ written to ``<path>.tmp-<pid>``, flushed and fsynced, renamed
 over the old file with ``os.replace`` and the folder fsynced, all under a :class:`ProjectLock`.
 A reader therefore only ever sees a complete old or a complete new file. Older format versions
 load through :data:`MIGRATIONS`.
+
+Nothing saved is lost to another writer: a command that changes a project holds the
+:class:`ProjectLock` from reading to saving (:mod:`.project_lock`), and :meth:`Project.save`
+refuses (:class:`ProjectChangedError`) to overwrite the file it was opened from when that file
+changed since. A write-protected project is not overwritten, and a save keeps the old file's
+permissions. Names (lines, results, keys) are printable text: HDF5 would cut a name at a NUL.
+Opening refuses files that would make volucal read beyond them (links, external or virtual
+data) or allocate far more than they hold (:mod:`.project_checks`).
 """
 
 from __future__ import annotations
@@ -38,9 +46,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import re
+import stat
 import threading
-import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -60,7 +67,23 @@ from .errors import (
 from .io.plan import session_order
 from .machine import AXES, Machine
 from .measurement import Environment, Line, LineData, LineSpec, Measurement, Plan
+from .names import check_name
+from .project_checks import check_structure
+from .project_lock import ProjectLock, recover, temporary_path
 from .userror import UserError
+
+__all__ = [
+    "FORMAT_VERSION",
+    "MIGRATIONS",
+    "Project",
+    "ProjectChangedError",
+    "ProjectLock",
+    "StoredLine",
+    "error_model_from_tree",
+    "error_model_to_tree",
+    "group_to_tree",
+    "tree_to_group",
+]
 
 FORMAT_VERSION = 1
 RESULT_KINDS = ("identifications", "loops", "sensitivity", "compensation")
@@ -113,14 +136,28 @@ def _read_group(group: h5py.Group) -> Group:
     return out
 
 
+def _no_nul(value: Any, where: str) -> None:
+    """HDF5 strings end at a NUL: refuse one rather than store a truncated value."""
+    texts = [value] if isinstance(value, str) else (
+        value.ravel().tolist() if isinstance(value, np.ndarray) and value.dtype.kind in "OU"
+        else []
+    )
+    if any(isinstance(t, str) and "\0" in t for t in texts):
+        raise UserError(f"{where}: a text holds a NUL character, which HDF5 cannot store; "
+                        "remove it")
+
+
 def _write_group(target: h5py.Group, group: Group) -> None:
     for key, value in group.attrs.items():
+        _no_nul(value, f"{target.name} attribute {key!r}")
         target.attrs[key] = h5py.Empty("f8") if value is None else value
     for name, child in group.children.items():
+        check_name(name, f"HDF5 name in {target.name}")
         if isinstance(child, Group):
             _write_group(target.create_group(name, track_order=True), child)
             continue
         value = child.value
+        _no_nul(value, f"{target.name}/{name}")
         if value.dtype.kind in "OUS":
             data = target.create_dataset(name, data=value.astype(object),
                                          dtype=h5py.string_dtype())
@@ -154,9 +191,9 @@ def tree_to_group(tree: Mapping[str, Any]) -> Group:
     group = Group({f"{_RESERVED}type": "dict"})
     for key, value in tree.items():
         if not isinstance(key, str) or not key or "/" in key or key.startswith(".") or \
-                key.startswith(_RESERVED):
-            raise ValueError(f"result key {key!r}: use a non-empty string without '/', not "
-                             f"starting with '.' or {_RESERVED!r}")
+                key.startswith(_RESERVED) or not key.isprintable():
+            raise ValueError(f"result key {key!r}: use a non-empty printable string without "
+                             f"'/', not starting with '.' or {_RESERVED!r}")
         _store(group, key, value)
     return group
 
@@ -256,100 +293,6 @@ def error_model_from_tree(tree: Mapping[str, Any], machine: Machine) -> ErrorMod
 
 
 # --------------------------------------------------------------------------------------------
-# Locking
-# --------------------------------------------------------------------------------------------
-
-_HELD: dict[str, int] = {}
-_HELD_GUARD = threading.RLock()
-
-
-def _pid_alive(pid: int) -> bool:
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True  # another user's live process
-    return True
-
-
-class ProjectLock:
-    """An exclusive lock on a project: the file ``<project>.lock`` created with O_EXCL, holding
-    the owner's pid.
-
-    A lock left by a process that no longer runs is taken over; one held by a live process
-    raises :class:`UserError` naming its pid. The lock is re-entrant within a process (a save
-    inside an import holds it once).
-    """
-
-    def __init__(self, path: str | Path) -> None:
-        self.project = Path(path)
-        self.path = Path(str(self.project) + ".lock")
-        self._key = str(self.path.resolve())
-
-    def acquire(self) -> None:
-        with _HELD_GUARD:
-            if self._key in _HELD:
-                _HELD[self._key] += 1
-                return
-            deadline = time.monotonic() + 1.0
-            while True:
-                try:
-                    fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-                except FileExistsError:
-                    holder = self._holder()
-                    if holder is not None and holder != os.getpid() and _pid_alive(holder):
-                        raise UserError(
-                            f"{self.project} is locked by process {holder} (lock file "
-                            f"{self.path}); wait for it to finish, or delete the lock file if "
-                            "that process is gone"
-                        ) from None
-                    if holder is None and time.monotonic() < deadline:
-                        time.sleep(0.02)  # a lock being created right now has no pid yet
-                        continue
-                    self._take_over(holder)
-                    continue
-                except OSError as exc:
-                    raise UserError(f"{self.path}: cannot create the lock file "
-                                    f"({exc.strerror or exc})") from None
-                with os.fdopen(fd, "w") as handle:
-                    handle.write(str(os.getpid()))
-                _HELD[self._key] = 1
-                return
-
-    def _holder(self) -> int | None:
-        try:
-            text = self.path.read_text(encoding="ascii", errors="replace").strip()
-        except FileNotFoundError:
-            return -1
-        return int(text) if text.isdigit() else None
-
-    def _take_over(self, stale: int | None) -> None:
-        # remove the stale lock only if it still names the dead holder we saw
-        if self._holder() == stale:
-            self.path.unlink(missing_ok=True)
-
-    def release(self) -> None:
-        with _HELD_GUARD:
-            count = _HELD.get(self._key, 0)
-            if count > 1:
-                _HELD[self._key] = count - 1
-                return
-            _HELD.pop(self._key, None)
-            if self._holder() == os.getpid():
-                self.path.unlink(missing_ok=True)
-
-    def __enter__(self) -> ProjectLock:
-        self.acquire()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.release()
-
-
-# --------------------------------------------------------------------------------------------
 # The project
 # --------------------------------------------------------------------------------------------
 
@@ -391,6 +334,7 @@ class Project:
         self.modified = self.created
         self.creator = _creator()
         self.path: Path | None = None
+        self._fingerprint: tuple[int, ...] | None = None
 
     @classmethod
     def create(cls, machine: Machine | None = None) -> Project:
@@ -415,6 +359,8 @@ class Project:
         ``notes``. A line whose name is already in the project raises UserError unless
         ``replace``.
         """
+        for line in measurement.lines:
+            _check_line_name(line.name)
         if self.machine is not None and self.machine != plan.machine:
             raise UserError(
                 f"the plan's machine ({plan.machine.name!r}) differs from the project's "
@@ -484,8 +430,10 @@ class Project:
     def _check_result(kind: str, name: str) -> None:
         if kind not in RESULT_KINDS:
             raise ValueError(f"result kind {kind!r} is not one of {', '.join(RESULT_KINDS)}")
-        if not isinstance(name, str) or not name or "/" in name or name.startswith("."):
-            raise ValueError(f"result name {name!r}: use a non-empty name without '/'")
+        if not isinstance(name, str) or not name or "/" in name or name.startswith(".") or \
+                not name.isprintable():
+            raise ValueError(f"result name {name!r}: use a non-empty printable name without "
+                             "'/', not starting with '.'")
 
     def put_result(self, kind: str, name: str, tree: Mapping[str, Any]) -> None:
         """Store a result tree (replacing one of the same kind and name)."""
@@ -508,36 +456,29 @@ class Project:
     def open(cls, path: str | Path) -> Project:
         """Load a project file.
 
+        Clears a stale lock and the temporary files of killed saves first (when no other process
+        holds the lock), and refuses files that would make volucal read beyond them or allocate
+        far more than they hold (:mod:`.project_checks`).
+
         Raises
         ------
         UserError
-            For a missing, damaged or non-volucal file, or one written by a newer volucal.
+            For a missing, damaged or non-volucal file, one written by a newer volucal, or one
+            holding links, external or virtual data or oversized datasets.
         """
         path = Path(path)
         if not path.is_file():
             raise UserError(f"{path}: no such project file")
+        recover(path)
         if not h5py.is_hdf5(path):
             raise UserError(f"{path}: not an HDF5 file; it is damaged or not a volucal project")
-        try:
-            with h5py.File(path, "r") as handle:
-                version = handle.attrs.get("format_version")
-                creator = handle.attrs.get("creator")
-                if version is None or creator is None:
-                    raise UserError(f"{path}: an HDF5 file but not a volucal project (no "
-                                    "format_version/creator stamp)")
-                version = int(version)
-                if version > FORMAT_VERSION:
-                    raise UserError(
-                        f"{path}: written by a newer volucal ({_attr_value(creator)}, format "
-                        f"{version}); this volucal reads formats up to {FORMAT_VERSION}: update "
-                        "volucal"
-                    )
-                document = _read_group(handle)
-        except UserError:
-            raise
-        except Exception as exc:  # h5py reports damage as OSError, KeyError, RuntimeError…
-            raise UserError(f"{path}: the project file is damaged ({exc}); restore a backup or "
-                            "import the plan again") from None
+        # A save renames a new file over this one: read until the file did not change under us,
+        # so the fingerprint kept for the next save is that of the file read.
+        for _ in range(5):
+            before = _fingerprint(path)
+            version, document = cls._read_file(path)
+            if _fingerprint(path) == before:
+                break
         for step in range(version, FORMAT_VERSION):
             document = MIGRATIONS[step](document)
         try:
@@ -547,29 +488,77 @@ class Project:
                 f"{path}: the project file is damaged or incomplete ({exc!r})"
             ) from None
         project.path = path
+        project._fingerprint = before
         return project
 
+    @staticmethod
+    def _read_file(path: Path) -> tuple[int, Group]:
+        try:
+            with h5py.File(path, "r") as handle:
+                version = _format_version(handle, path)
+                check_structure(handle, path)
+                return version, _read_group(handle)
+        except UserError:
+            raise
+        except Exception as exc:  # h5py reports damage as OSError, KeyError, RuntimeError…
+            raise UserError(f"{path}: the project file is damaged ({exc}); restore a backup or "
+                            "import the plan again") from None
+
     def save(self, path: str | Path | None = None) -> Path:
-        """Write the project atomically (module notes) under a :class:`ProjectLock`."""
+        """Write the project atomically (module notes) under a :class:`ProjectLock`.
+
+        Raises
+        ------
+        ProjectChangedError
+            When the file this project was opened from was changed by someone else since:
+            saving would lose that change.
+        UserError
+            When the file is write-protected or its folder cannot be written.
+        """
         target = Path(path) if path is not None else self.path
         if target is None:
             raise ValueError("save(path): this project has no file yet")
         with ProjectLock(target), _SAVE_GUARD:
-            _remove_stale_temporaries(target)
-            temporary = target.with_name(f"{target.name}.tmp-{os.getpid()}")
+            existing = _stat_or_none(target)
+            if existing is not None:
+                self._check_unchanged(target)
+                _check_writable(target, existing)
+            temporary = temporary_path(target)
             self.modified = _now()
             document = self._to_document()
             try:
                 with h5py.File(temporary, "w", track_order=True, libver="latest") as handle:
                     _write_group(handle, document)
+                if existing is not None:
+                    _copy_mode(existing, temporary)
                 _fsync_path(temporary)
                 os.replace(temporary, target)
                 _fsync_path(target.parent if str(target.parent) else Path("."))
+            except OSError as exc:
+                temporary.unlink(missing_ok=True)
+                raise UserError(f"{target}: cannot save the project ({exc.strerror or exc}); "
+                                "check that its folder is writable and has room") from None
             except BaseException:
                 temporary.unlink(missing_ok=True)
                 raise
+            self._fingerprint = _fingerprint(target)
         self.path = target
         return target
+
+    def _check_unchanged(self, target: Path) -> None:
+        """Refuse to save over the file this project came from when someone changed it since."""
+        if self.path is None or self._fingerprint is None:
+            return
+        try:
+            same = os.path.samefile(self.path, target) or self.path.resolve() == target.resolve()
+        except OSError:
+            same = self.path.resolve() == target.resolve()
+        if same and _fingerprint(target) != self._fingerprint:
+            raise ProjectChangedError(
+                f"{target} was changed by another program after this project was opened from "
+                "it; saving now would lose that change. Open the project again and redo this "
+                "step (nothing was written)"
+            )
 
     # ---- documents -----------------------------------------------------------------------
 
@@ -626,16 +615,80 @@ class Project:
 
 
 _SAVE_GUARD = threading.Lock()
-_TEMPORARY = re.compile(r"\.tmp-(\d+)$")
 
 
-def _remove_stale_temporaries(target: Path) -> None:
-    """Delete ``<project>.tmp-<pid>`` files left by saves that were killed."""
-    folder = target.parent if str(target.parent) else Path(".")
-    for candidate in folder.glob(f"{target.name}.tmp-*"):
-        match = _TEMPORARY.search(candidate.name)
-        if match and not _pid_alive(int(match.group(1))):
-            candidate.unlink(missing_ok=True)
+def _check_line_name(name: object) -> str:
+    """A line name names an HDF5 group: printable, no '/', not starting with '.'."""
+    text = check_name(name, "line name")
+    if "/" in text or text.startswith("."):
+        raise UserError(f"line name {text!r}: a name cannot contain '/' or start with '.' (it "
+                        "names a group in the project file)")
+    return text
+
+
+class ProjectChangedError(UserError):
+    """The project file changed on disk since it was opened; saving would lose that change."""
+
+
+def _format_version(handle: h5py.File, path: Path) -> int:
+    version = handle.attrs.get("format_version")
+    creator = handle.attrs.get("creator")
+    if version is None or creator is None:
+        raise UserError(f"{path}: an HDF5 file but not a volucal project (no "
+                        "format_version/creator stamp)")
+    value = _attr_value(version)
+    whole = isinstance(value, int) and not isinstance(value, bool)
+    if isinstance(value, float) and value.is_integer():
+        value, whole = int(value), True
+    if not whole or value < 1:
+        raise UserError(
+            f"{path}: format_version {value!r} is not a volucal format version (a whole number "
+            f"from 1 to {FORMAT_VERSION}); the file is damaged or was not written by volucal"
+        )
+    if value > FORMAT_VERSION:
+        raise UserError(
+            f"{path}: written by a newer volucal ({_attr_value(creator)}, format "
+            f"{value}); this volucal reads formats up to {FORMAT_VERSION}: update volucal"
+        )
+    return int(value)
+
+
+def _stat_or_none(path: Path) -> os.stat_result | None:
+    try:
+        return os.stat(path)
+    except FileNotFoundError:
+        return None
+
+
+def _fingerprint(path: Path) -> tuple[int, ...] | None:
+    """Identity and content stamp of a file: a save renames a new file into place, so the inode
+    changes; the size and modification time catch writes in place by other programs."""
+    info = _stat_or_none(path)
+    if info is None:
+        return None
+    return (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
+
+
+def _check_writable(target: Path, info: os.stat_result) -> None:
+    # The write bits, not os.access: root may write anything, but a project someone made
+    # read-only (chmod 444) is meant to stay as it is.
+    if not info.st_mode & 0o222 or not os.access(target, os.W_OK):
+        raise UserError(
+            f"{target} is write-protected (mode {stat.S_IMODE(info.st_mode):04o}); volucal does "
+            f"not overwrite it. Make it writable (chmod u+w {target}) or save under another name"
+        )
+
+
+def _copy_mode(existing: os.stat_result, temporary: Path) -> None:
+    """Give the new file the old one's permissions (and owner and group where allowed)."""
+    os.chmod(temporary, stat.S_IMODE(existing.st_mode))
+    if hasattr(os, "chown"):
+        current = os.stat(temporary)
+        if (current.st_uid, current.st_gid) != (existing.st_uid, existing.st_gid):
+            try:
+                os.chown(temporary, existing.st_uid, existing.st_gid)
+            except OSError:
+                pass  # only root may give a file away; the mode is kept regardless
 
 
 def _fsync_path(path: Path) -> None:

@@ -101,11 +101,14 @@ def run(
 
 def store_compensation(project_path: Path, compensation: dict) -> None:  # type: ignore[type-arg]
     """Replace the project's compensation result (e.g. with the demo's verified rates)."""
-    from ..project import Project
+    from ..project import Project, ProjectLock
 
-    project = Project.open(project_path)
-    project.put_result("compensation", "main", {"report_json": json.dumps(_jsonable(compensation))})
-    project.save(project_path)
+    with ProjectLock(project_path):  # from reading to saving: no other writer's change is lost
+        project = Project.open(project_path)
+        project.put_result(
+            "compensation", "main", {"report_json": json.dumps(_jsonable(compensation))}
+        )
+        project.save(project_path)
 
 
 def handle(args: argparse.Namespace) -> int:

@@ -10,7 +10,14 @@ import argparse
 import json
 from pathlib import Path
 
-from ..compensation import FORMATS, ExportOptions, ExportResult, ModelSource, export_model
+from ..compensation import (
+    DEFAULT_MAX_CORRECTION_UM,
+    FORMATS,
+    ExportOptions,
+    ExportResult,
+    ModelSource,
+    export_model,
+)
 from ..compensation.export import FORMAT_HELP
 from ..compensation.ncprogram import WORK_OFFSETS, RewriteOptions
 from ..compensation.source import ErrorSource
@@ -26,7 +33,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "Write compensation for a controller from the identified model of a project: "
             + "; ".join(f"{name}: {text}" for name, text in FORMAT_HELP.items())
             + ". Every export also writes volucal_export.json (units, signs, tool offset, flags, "
-            "predicted compensation rates)."
+            "predicted compensation rates). Every table is checked against the controller's "
+            "limits and every correction against --max-correction-um before anything is "
+            "written; a refused export leaves DIR as it was."
         ),
     )
     parser.add_argument("project", type=Path, help="the volucal project (.h5)")
@@ -54,7 +63,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="the controller's names of the axes (LinuxCNC joint numbers, Siemens AX1, Fanuc "
         "axis numbers, ISG logical axis numbers, Heidenhain keys)",
     )
-    parser.add_argument("--max-points", type=int, help="the controller's point limit if larger")
+    parser.add_argument(
+        "--max-points",
+        type=int,
+        help="the controller's point limit where it differs from the documented one (a "
+        "configured MD38000, a larger ISG list); never beyond a fixed limit (LinuxCNC and "
+        "Heidenhain 256, Fanuc point numbers 0..1023)",
+    )
+    large = parser.add_mutually_exclusive_group()
+    large.add_argument(
+        "--max-correction-um",
+        type=float,
+        default=DEFAULT_MAX_CORRECTION_UM,
+        metavar="UM",
+        help="refuse to export a correction larger than this, um (default %(default)g): a "
+        "larger one points to a wrong identification",
+    )
+    large.add_argument(
+        "--allow-large-corrections",
+        action="store_true",
+        help="export corrections of any size (the machine really needs more than "
+        "--max-correction-um)",
+    )
     parser.add_argument(
         "--no-cross", action="store_true", help="leave out cross-axis tables (Siemens, Heidenhain)"
     )
@@ -113,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
             work_offsets_mm=_work_offsets(args.work_offset),
             unknown="pass" if args.pass_unknown else "refuse",
         ),
+        max_correction_um=None if args.allow_large_corrections else args.max_correction_um,
     )
     source = load_source(args.project, args.identification)
     result = export_model(source, args.format, args.out, options)

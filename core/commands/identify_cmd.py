@@ -15,13 +15,16 @@ from ..identify import IdentifyOptions, identify, parameters_report, residual_rm
 
 
 def handle(args: argparse.Namespace) -> int:
-    from ..project import Project
+    from ..project import Project, ProjectLock
 
-    project = Project.open(args.project)
-    measurement = project.measurement()
-    result = identify(measurement, IdentifyOptions(spacing_mm=args.spacing))
-    project.put_result("identifications", args.name, identification_tree(result))
-    project.save(args.project)
+    # Held from reading to saving: an import meanwhile is refused instead of being overwritten
+    # by this command's older copy of the project.
+    with ProjectLock(args.project):
+        project = Project.open(args.project)
+        measurement = project.measurement()
+        result = identify(measurement, IdentifyOptions(spacing_mm=args.spacing))
+        project.put_result("identifications", args.name, identification_tree(result))
+        project.save(args.project)
     info = result.identifiability
     rms_um, rms_urad = residual_rms(result)
     if args.json:

@@ -108,6 +108,18 @@ def _project_analysis(
         raise UserError(
             f"{args.project}: project support not available in this installation"
         ) from None
+    # Held from reading to saving: another writer meanwhile is refused instead of being
+    # overwritten by this command's older copy of the project.
+    with project_module.ProjectLock(args.project):
+        return _analyse_and_store(project_module, args, outputs, tool)
+
+
+def _analyse_and_store(
+    project_module: Any,
+    args: argparse.Namespace,
+    outputs: tuple[str, ...],
+    tool: tuple[float, float, float] | None,
+) -> SensitivityResult:
     project = project_module.Project.open(args.project)
     names = list(project.results("identifications"))
     if not names:

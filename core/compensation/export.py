@@ -11,12 +11,18 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import re
+import shutil
+import tempfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import ErrorModel
+from ..names import file_in_folder
 from ..progress import CancelToken, ProgressCallback, check, report
+from ..project_lock import pid_alive
 from ..userror import UserError
 from . import (
     export_fanuc,
@@ -26,9 +32,17 @@ from . import (
     export_linuxcnc,
     export_siemens,
 )
-from .export_common import ExportContext, ExporterOutput, ExportOptions, write_text
+from .export_common import (
+    ExportContext,
+    ExporterOutput,
+    ExportOptions,
+    table_kinds_values,
+    write_text,
+)
+from .limits import check_axis_names, check_sizes, limits_of, point_limit
 from .ncprogram import rewrite_file
-from .source import ErrorSource, as_source
+from .plausibility import AppliedValues, check_limit, check_plausible, table_values
+from .source import ErrorSource, as_source, measured_range
 from .tables import CompensationTables, build_tables
 from .verify import (
     Compensation,
@@ -50,11 +64,16 @@ def _export_gcode(context: ExportContext) -> ExporterOutput:
             "--program FILE.ngc"
         )
     program = Path(options.program)
-    out = context.out_dir / f"{program.stem}_volucal{program.suffix or '.ngc'}"
+    out = file_in_folder(context.out_dir, f"{program.stem}_volucal{program.suffix or '.ngc'}",
+                         "the rewritten program's name (from --program)")
     rewrite = options.rewrite
     if options.tool_offset_mm is not None:
         rewrite = dataclasses.replace(rewrite, tool_offset_mm=options.tool_offset_mm)
     result = rewrite_file(context.source, program, out, rewrite)
+    applied: tuple[AppliedValues, ...] = ()
+    if result.max_correction_at_mm is not None:
+        applied = (table_values(f"{program.name} line {result.max_correction_line}", "",
+                                [result.max_correction_at_mm], [result.max_correction_um]),)
     return ExporterOutput(
         files=(out,),
         convention=(
@@ -64,6 +83,7 @@ def _export_gcode(context: ExportContext) -> ExporterOutput:
         notes=result.notes + result.flags,
         compensation=ExactCompensation(context.source, result.tool_offset_mm),
         details={"rewrite": result.to_json()},
+        applied=applied,
     )
 
 
@@ -90,6 +110,19 @@ FORMAT_HELP = {
     "json": "generic JSON document with every table",
     "gcode": "an RS274/NGC program rewritten for volumetric compensation (--program)",
 }
+
+#: The computed tables each format carries, judged for plausibility before it is written.
+CARRIED = {
+    "linuxcnc": ("axis",),
+    "siemens": ("axis", "cross"),
+    "fanuc": ("axis",),
+    "heidenhain": ("axis", "cross"),
+    "isg": ("axis", "grid"),
+    "csv": ("axis", "cross", "grid"),
+    "json": ("axis", "cross", "grid"),
+    "gcode": (),
+}
+STAGING = ".volucal-export-"
 
 
 @dataclass(frozen=True, eq=False)
@@ -144,7 +177,8 @@ def export_model(
     format : str
         One of :data:`FORMATS`.
     out_dir : path
-        Folder for the files (created if missing; files of the same name are replaced).
+        Folder for the files (created if missing; files of the same name are replaced, all of
+        them only once every check has passed).
     options : ExportOptions, optional
         Spacing, tool offset, axis names, limits, program to rewrite, ...
 
@@ -154,11 +188,22 @@ def export_model(
         Files, conventions, notes, flags (positions beyond the measured range) and the
         predicted rates of the export as the controller applies it, next to the volumetric
         grid, NC rewriting and per-axis tables.
+
+    Raises
+    ------
+    LargeCorrectionError
+        A correction beyond ``options.max_correction_um`` (:mod:`.plausibility`), with the
+        offending points; nothing is written.
+    TableLimitError
+        A table beyond the controller's limits (:mod:`.limits`); nothing is written.
+    UserError
+        Options the format cannot take (axis names, point limit, sizes), unwritable folders.
     """
     if format not in FORMATS:
         raise UserError(f"unknown export format {format!r}; use one of {', '.join(FORMATS)}")
     options = options or ExportOptions()
     error_source = as_source(source)
+    _check_options(format, error_source, options)
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -166,6 +211,9 @@ def export_model(
         raise UserError(f"{out}: cannot create the output folder ({exc.strerror})") from None
     report(progress, 0.0, "computing tables")
     tables = build_tables(error_source, options.table_request(), cancel=cancel)
+    kinds = tuple(k for k in CARRIED.get(format, ("axis", "cross", "grid"))
+                  if k != "cross" or options.include_cross)
+    check_plausible(format, table_kinds_values(tables, kinds), options.max_correction_um)
     written = tables
     if format == "fanuc":
         # Fanuc's points sit at the reference plus whole intervals and may reach past the
@@ -174,40 +222,83 @@ def export_model(
         written = build_tables(error_source, options.table_request(nodes), cancel=cancel)
     check(cancel)
     report(progress, 0.4, f"writing {format} files")
-    context = ExportContext(error_source, written, out, options)
-    output = FORMATS[format](context)
-    check(cancel)
-    report(progress, 0.6, "verifying the export")
-    methods = standard_compensations(error_source, tables)
-    if output.compensation is not None:
-        methods = {
-            "export": (f"the {format} export as the controller applies it", output.compensation),
-            **methods,
-        }
-    verification = verify(
-        error_source,
-        methods,
-        VerifyRequest(
-            grid_spacing_mm=options.grid_spacing_mm, tool_offset_mm=tables.tool_offset_mm
-        ),
-        cancel=cancel,
-    )
-    result = ExportResult(
-        format=format,
-        out_dir=out,
-        files=output.files,
-        tool_offset_mm=written.tool_offset_mm,
-        convention=output.convention,
-        notes=output.notes,
-        flags=written.flags,
-        tables=written,
-        verification=verification,
-        details=output.details,
-        compensation=output.compensation,
-    )
-    manifest = write_text(out / MANIFEST, json.dumps(result.to_json(), indent=1) + "\n")
+    # Files are written into a staging folder and moved into place only once every check has
+    # passed: a refused export leaves the folder as it was.
+    staging = _staging_folder(out)
+    try:
+        context = ExportContext(error_source, written, staging, options)
+        output = FORMATS[format](context)
+        check_plausible(format, output.applied_values(), options.max_correction_um)
+        check(cancel)
+        report(progress, 0.6, "verifying the export")
+        methods = standard_compensations(error_source, tables)
+        if output.compensation is not None:
+            methods = {
+                "export": (f"the {format} export as the controller applies it",
+                           output.compensation),
+                **methods,
+            }
+        verification = verify(
+            error_source,
+            methods,
+            VerifyRequest(
+                grid_spacing_mm=options.grid_spacing_mm, tool_offset_mm=tables.tool_offset_mm
+            ),
+            cancel=cancel,
+        )
+        result = ExportResult(
+            format=format,
+            out_dir=out,
+            files=tuple(out / p.name for p in output.files),
+            tool_offset_mm=written.tool_offset_mm,
+            convention=output.convention,
+            notes=output.notes,
+            flags=written.flags,
+            tables=written,
+            verification=verification,
+            details=output.details,
+            compensation=output.compensation,
+        )
+        manifest = write_text(staging / MANIFEST, json.dumps(result.to_json(), indent=1) + "\n")
+        check(cancel)
+        _publish((*output.files, manifest), out)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
     report(progress, 1.0, "export done")
-    return dataclasses.replace(result, files=(*output.files, manifest))
+    return dataclasses.replace(result, files=(*result.files, out / MANIFEST))
+
+
+def _check_options(format: str, source: ErrorSource, options: ExportOptions) -> None:
+    """Everything the options alone can be judged on, before any table is computed."""
+    limits_of(format)
+    point_limit(format, options.max_points)
+    check_axis_names(format, options.axis_names)
+    check_limit(options.max_correction_um)
+    extents = dict(measured_range(source))
+    if options.range_mm:
+        extents.update({a: (float(v[0]), float(v[1])) for a, v in options.range_mm.items()})
+    check_sizes(extents, options.spacing_mm, options.grid_spacing_mm)
+
+
+def _staging_folder(out: Path) -> Path:
+    for old in out.glob(f"{STAGING}*"):
+        # left by an export that was killed: its process no longer runs
+        match = re.match(rf"{re.escape(STAGING)}(\d+)-", old.name)
+        if match and not pid_alive(int(match.group(1))):
+            shutil.rmtree(old, ignore_errors=True)
+    try:
+        return Path(tempfile.mkdtemp(prefix=f"{STAGING}{os.getpid()}-", dir=out))
+    except OSError as exc:
+        raise UserError(f"{out}: cannot write into the output folder ({exc.strerror})") from None
+
+
+def _publish(staged: tuple[Path, ...], out: Path) -> None:
+    for path in staged:
+        target = file_in_folder(out, path.name)
+        try:
+            os.replace(path, target)
+        except OSError as exc:
+            raise UserError(f"{target}: cannot write the file ({exc.strerror})") from None
 
 
 #: Methods that invert the model exactly: their rate predicted on that same model is 100 % by

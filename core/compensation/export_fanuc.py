@@ -36,14 +36,17 @@ from .export_common import (
     ExporterOutput,
     ExportOptions,
     TableLimitError,
+    text_for_file,
     tool_line,
     write_text,
 )
+from .limits import LIMITS, MAX_TABLE_NODES, check_values, point_limit
 from .source import ErrorSource, measured_range
 
 MAX_NUMBER = 1023  # pitch error compensation point numbers 0..1023 (Series 16i/18i/0i)
 MAX_VALUE = 127  # per-point setting range -128..127
 MAX_MAGNIFICATION = 100
+MAX_INTERVAL = 99_999_999  # parameter 3624, eight digits (assumed, not confirmed)
 DEFAULT_AXIS_NUMBERS = {"X": "1", "Y": "2", "Z": "3"}
 
 
@@ -60,6 +63,11 @@ def table_nodes(source: ErrorSource, options: ExportOptions) -> dict[str, tuple[
         low, high = extents[axis]
         below = max(0, math.ceil((ref - low) / interval - 1e-9))
         above = max(0, math.ceil((high - ref) / interval - 1e-9))
+        if below + above + 1 > MAX_TABLE_NODES:
+            raise TableLimitError(
+                f"a {interval:g} mm interval gives {below + above + 1:,} pitch error points on "
+                f"{axis}; the control numbers at most {MAX_NUMBER + 1}: use a larger --spacing"
+            )
         nodes[axis] = tuple(ref + k * interval for k in range(-below, above + 1))
     return nodes
 
@@ -72,7 +80,15 @@ def _detection_unit_mm(options: ExportOptions) -> float:
 
 
 def _interval_mm(options: ExportOptions, unit_mm: float) -> float:
-    counts = max(1, round(options.spacing_mm / unit_mm))
+    spacing = options.spacing_mm
+    if not (math.isfinite(spacing) and spacing > 0):
+        raise UserError(f"--spacing must be a positive number of mm, got {spacing}")
+    counts = max(1, round(spacing / unit_mm))
+    if counts > MAX_INTERVAL:
+        raise TableLimitError(
+            f"a {spacing:g} mm interval is {counts:,} detection units, more than parameter 3624 "
+            f"holds ({MAX_INTERVAL:,}); use a smaller --spacing or a larger --detection-unit"
+        )
     return counts * unit_mm
 
 
@@ -81,7 +97,7 @@ def export(context: ExportContext) -> ExporterOutput:
     tables = context.tables
     machine = context.source.machine
     unit_um = _detection_unit_mm(options) * 1e3
-    limit = options.max_points or (MAX_NUMBER + 1)
+    limit = point_limit("fanuc", options.max_points)
     bidirectional = any(tables.axis[a].bidirectional for a in AXES)
     plans: dict[str, _PointPlan] = {}
     next_number = 0
@@ -99,10 +115,12 @@ def export(context: ExportContext) -> ExporterOutput:
             plans[axis].low_negative = next_number
             next_number += plans[axis].high - plans[axis].low + 1
     if next_number > limit:
+        ceiling = LIMITS["fanuc"].points_ceiling
         raise TableLimitError(
             f"the pitch error tables need {next_number} compensation points but the control "
-            f"has {limit} (numbers 0..{limit - 1}); export with a larger --spacing or pass the "
-            "control's count with --max-points"
+            f"has {limit} (numbers 0..{limit - 1}); export with a larger --spacing"
+            + (" or pass the control's count with --max-points"
+               if ceiling is not None and limit < ceiling.value else "")
         )
     parameters: dict[int, dict[str, int]] = {3620: {}, 3621: {}, 3622: {}, 3623: {}, 3624: {}}
     if bidirectional:
@@ -145,6 +163,10 @@ def export(context: ExportContext) -> ExporterOutput:
             directions.append(("-", abs_backward, plan.low_negative, -1))
         for label, absolute, first, direction in directions:
             increments = _increments(absolute, zero, plan.below, plan.above)
+            section_ends = [nodes[zero] + (offset - (plan.reference - plan.low)) * interval
+                            for offset in range(len(increments))]
+            check_values("fanuc", f"the {axis} pitch error table ({label})", section_ends,
+                         increments)
             for offset, value in enumerate(increments):
                 n = first + offset
                 data[n] = value
@@ -174,7 +196,8 @@ def export(context: ExportContext) -> ExporterOutput:
         write_text(context.out_dir / "FANUC_PITCH.TXT", "\n".join(lines) + "\n"),
         write_text(
             context.out_dir / "fanuc_pitch_points.csv",
-            f"# volucal pitch error compensation for {machine.name}; {tool_line(tables)}\n"
+            f"# volucal pitch error compensation for {text_for_file(machine.name)}; "
+            f"{tool_line(tables)}\n"
             f"# increments in detection units ({unit_um:g} um) times parameter 3623\n"
             + "\n".join(rows)
             + "\n",

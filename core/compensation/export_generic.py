@@ -22,14 +22,14 @@ import numpy as np
 
 from ..machine import AXES
 from .controller import axis_compensation
-from .export_common import ExportContext, ExporterOutput, tool_line, write_text
+from .export_common import ExportContext, ExporterOutput, text_for_file, tool_line, write_text
 
 DECIMALS = 5  # µm: 10 pm, far below any machine's resolution; the files stay exact enough
 
 
 def _header(context: ExportContext) -> list[str]:
     return [
-        f"# volucal compensation tables for {context.source.machine.name}",
+        f"# volucal compensation tables for {text_for_file(context.source.machine.name)}",
         f"# {tool_line(context.tables)}",
         "# error = actual - nominal; correction = commanded - nominal (add to the command)",
     ]

@@ -31,13 +31,12 @@ from .controller import ControllerCompensation, LoadedTable
 from .export_common import (
     ExportContext,
     ExporterOutput,
-    check_points,
     rounded,
     tool_line,
     write_text,
 )
+from .limits import check_count, check_positions, check_values, point_limit
 
-MAX_ENTRIES = 256
 DECIMALS = 4  # mm: 0.1 µm
 
 
@@ -51,14 +50,10 @@ def export(context: ExportContext) -> ExporterOutput:
         table = tables.axis[axis]
         nodes = table.position_mm
         spacing = table.spacing_mm or float(np.max(np.diff(nodes)))
-        check_points(
-            len(nodes),
-            options.max_points or MAX_ENTRIES,
-            f"the {axis} table",
-            "a Heidenhain .COM table",
-            float(nodes[-1] - nodes[0]),
-            spacing,
-        )
+        label = f"the {axis} table"
+        limit = point_limit("heidenhain", options.max_points)
+        check_count("heidenhain", label, len(nodes), limit, float(nodes[-1] - nodes[0]), spacing)
+        check_positions("heidenhain", label, nodes)
         if table.bidirectional:
             own = -table.correction_forward_um
             backlash = table.correction_forward_um - table.correction_backward_um
@@ -73,6 +68,8 @@ def export(context: ExportContext) -> ExporterOutput:
         ordered = [a for a in AXES if a in columns]
         values = {a: rounded(columns[a] / 1e3, DECIMALS) for a in ordered}
         backlash_mm = rounded(backlash / 1e3, DECIMALS)
+        for column in (*values.values(), backlash_mm):
+            check_values("heidenhain", label, nodes, column)
         header = ["NR", "AXISPOS", "BACKLASH", *[names[a] for a in ordered]]
         width = 12
         lines = [

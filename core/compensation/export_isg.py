@@ -32,13 +32,21 @@ from ..errors import (
 from ..machine import AXES
 from ..userror import UserError
 from .controller import ControllerCompensation, LoadedTable
-from .export_common import ExportContext, ExporterOutput, check_points, tool_line, write_text
+from .export_common import (
+    ExportContext,
+    ExporterOutput,
+    loaded_values,
+    table_kinds_values,
+    text_for_file,
+    tool_line,
+    write_text,
+)
+from .limits import check_count, check_finite, check_positions, check_values, point_limit
 from .source import ModelSource, rigid_model
 from .verify import ExactCompensation, SumCompensation
 
 ISG_SQUARENESS = {"EC0Y": "C0Y", "EB0Z": "B0Z", "EA0Z": "A0Z"}
 DEFAULT_LOGICAL = {"X": "1", "Y": "2", "Z": "3"}
-MAX_LSEC_ENTRIES = 1500  # P-COMP-00059 default before it became configurable
 TENTH_UM = 0.1
 
 
@@ -54,15 +62,20 @@ def export(context: ExportContext) -> ExporterOutput:
         )
     machine = model.machine
     lines = [
-        f"// volucal volumetric compensation data for {machine.name}",
+        f"// volucal volumetric compensation data for {text_for_file(machine.name)}",
         f"// chain {machine.chain} (workpiece to tool); {tool_line(tables)}",
         "// units: mm (translations), rad (rotations); ISO 230-1 error signs",
         " ".join(ISG_SQUARENESS[s] for s in SQUARENESS_IDS),
         " ".join(f"{model.squareness_urad[s] * 1e-6:.9e}" for s in SQUARENESS_IDS),
     ]
+    squareness = [model.squareness_urad[s] for s in SQUARENESS_IDS]
+    check_finite("the squareness block", [0.0, 0.0, 0.0], squareness)
     for axis in AXES:
         nodes = tables.axis[axis].position_mm
         values = model.axis_values(axis, nodes)
+        check_positions("isg", f"the {axis} block", nodes)
+        for column in values.T:
+            check_finite(f"the {axis} block", nodes, column)
         lines += ["#", " ".join([axis, *axis_error_ids(axis)])]
         for q, row in zip(nodes, values, strict=True):
             translations = [f"{v * 1e-3:.9e}" for v in row[:3]]
@@ -90,17 +103,19 @@ def export(context: ExportContext) -> ExporterOutput:
         nodes = table.position_mm
         step = table.spacing_mm
         assert step is not None
-        check_points(
-            len(nodes),
-            options.max_points or MAX_LSEC_ENTRIES,
-            f"the {axis} reversal list",
-            "an ISG leadscrew list",
-            float(nodes[-1] - nodes[0]),
-            step,
-        )
+        label = f"the {axis} reversal list"
+        limit = point_limit("isg", options.max_points)
+        check_count("isg", label, len(nodes), limit, float(nodes[-1] - nodes[0]), step)
+        check_positions("isg", label, nodes)
+        check_values("isg", label + " (interval, start)", nodes[:2],
+                     [step * 1e4, nodes[0] * 1e4])
         mean = table.correction_mean_um
-        pos = np.round(-(table.correction_forward_um - mean) / TENTH_UM).astype(int)
-        neg = np.round(-(table.correction_backward_um - mean) / TENTH_UM).astype(int)
+        pos_tenths = -(table.correction_forward_um - mean) / TENTH_UM
+        neg_tenths = -(table.correction_backward_um - mean) / TENTH_UM
+        check_values("isg", label, nodes, pos_tenths)
+        check_values("isg", label, nodes, neg_tenths)
+        pos = np.round(pos_tenths).astype(np.int64)
+        neg = np.round(neg_tenths).astype(np.int64)
         logical = options.axis_name(axis, DEFAULT_LOGICAL[axis])
         text = [
             f"# volucal reversal compensation of {axis}: each direction's error minus the mean",
@@ -117,8 +132,8 @@ def export(context: ExportContext) -> ExporterOutput:
         text += [f"kw.ssfk.table[{i}].pos           {v}" for i, v in enumerate(pos)]
         text += [f"kw.ssfk.table[{i}].neg           {v}" for i, v in enumerate(neg)]
         files.append(write_text(context.out_dir / f"achskw_{axis}.lis", "\n".join(text) + "\n"))
-        loaded.append(LoadedTable(axis, axis, nodes, -pos * TENTH_UM, direction=1))
-        loaded.append(LoadedTable(axis, axis, nodes, -neg * TENTH_UM, direction=-1))
+        loaded.append(LoadedTable(axis, axis, nodes, (-pos * TENTH_UM).astype(np.float64), 1))
+        loaded.append(LoadedTable(axis, axis, nodes, (-neg * TENTH_UM).astype(np.float64), -1))
     if loaded:
         notes.append("achskw_<axis>.lis: activate with P-AXIS-00175 lr_param.ssfk = 1")
     volumetric = ExactCompensation(loaded_model, tables.tool_offset_mm)
@@ -131,11 +146,15 @@ def export(context: ExportContext) -> ExporterOutput:
         "isg_volcomp.csv: error functions (ISO 230-1), mm and rad; the control corrects",
         "achskw_<axis>.lis: bilateral lists, error minus the mean of both directions, 0.1 um",
     )
+    # ISG computes the volumetric correction from the error functions itself: judge it on the
+    # volumetric grid, and the reversal lists as loaded.
+    applied = (*table_kinds_values(tables, ("grid",)), *loaded_values(tuple(loaded)))
     return ExporterOutput(
         files=tuple(files),
         convention=convention,
         notes=tuple(notes),
         compensation=compensation,
+        applied=applied,
     )
 
 

@@ -27,13 +27,13 @@ from .controller import ControllerCompensation, LoadedTable
 from .export_common import (
     ExportContext,
     ExporterOutput,
-    check_points,
     rounded,
+    text_for_file,
     tool_line,
     write_text,
 )
+from .limits import check_count, check_positions, check_values, point_limit
 
-MAX_LINES = 256
 DECIMALS = 6  # mm: nanometres, below anything LinuxCNC's servo loop resolves
 DEFAULT_JOINTS = {"X": "0", "Y": "1", "Z": "2"}  # trivkins
 
@@ -43,12 +43,12 @@ def export(context: ExportContext) -> ExporterOutput:
     file_type = options.linuxcnc_type
     if file_type not in (0, 1):
         raise UserError(f"LinuxCNC COMP_FILE_TYPE must be 0 or 1, got {file_type}")
-    limit = options.max_points or MAX_LINES
+    limit = point_limit("linuxcnc", options.max_points)
     files = []
     loaded = []
     ini = [
         f"# volucal joint compensation (COMP_FILE_TYPE {file_type}) for "
-        f"{context.source.machine.name}",
+        f"{text_for_file(context.source.machine.name)}",
         f"# {tool_line(context.tables)}",
         "# Values in mm. Joint compensation corrects each joint along its own axis only;",
         "# straightness, squareness and cross-axis errors are not corrected by these files.",
@@ -57,20 +57,17 @@ def export(context: ExportContext) -> ExporterOutput:
         table = context.tables.axis[axis]
         nodes = table.position_mm
         spacing = table.spacing_mm or float(np.max(np.diff(nodes)))
-        check_points(
-            len(nodes),
-            limit,
-            f"the {axis} table",
-            "a LinuxCNC COMP_FILE",
-            float(nodes[-1] - nodes[0]),
-            spacing,
-        )
+        label = f"the {axis} table"
+        check_count("linuxcnc", label, len(nodes), limit, float(nodes[-1] - nodes[0]), spacing)
+        check_positions("linuxcnc", label, nodes)
         forward = rounded(table.correction_forward_um / 1e3, DECIMALS)
         backward = rounded(table.correction_backward_um / 1e3, DECIMALS)
         if file_type == 0:
             columns = (nodes - forward, nodes - backward)
         else:
             columns = (forward, backward)
+        for column in columns:
+            check_values("linuxcnc", label, nodes, column)
         lines = [
             f"{n:.{DECIMALS}f} {a:.{DECIMALS}f} {b:.{DECIMALS}f}"
             for n, a, b in zip(nodes, *columns, strict=True)

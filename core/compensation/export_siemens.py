@@ -31,15 +31,15 @@ from .export_common import (
     ExportContext,
     ExporterOutput,
     TableLimitError,
-    check_points,
     rounded,
+    text_for_file,
     tool_line,
     write_text,
 )
+from .limits import check_count, check_positions, check_values, point_limit
 from .tables import equidistant_spacing
 
-EEC_MAX_POINTS = 5000  # MD38000 upper limit on 840D sl
-CEC_MAX_POINTS = 2000  # MD18342 upper limit on 840D sl
+CEC_MAX_POINTS = 2000  # MD18342 upper limit on 840D sl (assumed, not confirmed)
 DECIMALS = 6  # mm
 DEFAULT_NAMES = {"X": "AX1", "Y": "AX2", "Z": "AX3"}
 
@@ -49,7 +49,7 @@ def export(context: ExportContext) -> ExporterOutput:
     tables = context.tables
     names = {a: options.axis_name(a, DEFAULT_NAMES[a]) for a in AXES}
     header = [
-        f"; volucal compensation for {context.source.machine.name}",
+        f"; volucal compensation for {text_for_file(context.source.machine.name)}",
         f"; {tool_line(tables)}",
     ]
     eec = [
@@ -64,14 +64,10 @@ def export(context: ExportContext) -> ExporterOutput:
     for axis in AXES:
         table = tables.axis[axis]
         nodes, step = _equidistant(table.position_mm, axis)
-        check_points(
-            len(nodes),
-            options.max_points or EEC_MAX_POINTS,
-            f"the {axis} leadscrew table",
-            "Siemens EEC (MD38000)",
-            float(nodes[-1] - nodes[0]),
-            step,
-        )
+        label = f"the {axis} leadscrew table"
+        limit = point_limit("siemens", options.max_points)
+        check_count("siemens", label, len(nodes), limit, float(nodes[-1] - nodes[0]), step)
+        check_positions("siemens", label, nodes)
         values = table.error_mean_um
         shift = float(np.interp(machine.reference(axis), nodes, values))
         if abs(shift) > 0.05:
@@ -80,6 +76,7 @@ def export(context: ExportContext) -> ExporterOutput:
                 f"reference point {machine.reference(axis):g} mm"
             )
         values_mm = rounded((values - shift) / 1e3, DECIMALS)
+        check_values("siemens", label, nodes, values_mm)
         name = names[axis]
         eec += [f"$AA_ENC_COMP[0,{i},{name}]={v:.{DECIMALS}f}" for i, v in enumerate(values_mm)]
         eec += [
@@ -116,15 +113,13 @@ def export(context: ExportContext) -> ExporterOutput:
         ]
         for index, (inp, out, nodes_in, values, direction) in enumerate(cec_tables):
             nodes, step = _equidistant(nodes_in, inp)
-            check_points(
-                len(nodes),
-                options.max_points or CEC_MAX_POINTS,
-                f"the {out}=f({inp}) table",
-                "Siemens CEC (MD18342)",
-                float(nodes[-1] - nodes[0]),
-                step,
-            )
+            label = f"the {out}=f({inp}) table"
+            limit = options.max_points or CEC_MAX_POINTS
+            check_count("siemens", label + " (Siemens CEC, MD18342)", len(nodes), limit,
+                        float(nodes[-1] - nodes[0]), step)
+            check_positions("siemens", label, nodes)
             values_mm = rounded(values / 1e3, DECIMALS)
+            check_values("siemens", label, nodes, values_mm)
             cec += [f"$AN_CEC[{index},{i}]={v:.{DECIMALS}f}" for i, v in enumerate(values_mm)]
             cec += [
                 f"$AN_CEC_INPUT_AXIS[{index}]=({names[inp]})",

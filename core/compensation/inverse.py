@@ -75,6 +75,13 @@ def invert(
     while iterations < max_iterations:
         iterations += 1
         updated = n - source.error_um(c, signs, tool_offset_mm) / UM_PER_MM
+        broken = ~np.all(np.isfinite(updated), axis=1)
+        if np.any(broken):
+            where = n[int(np.argmax(broken))].round(3).tolist()
+            raise UserError(
+                f"the error model gives a value that is not a number at nominal {where} mm; no "
+                "controller can load it — check the identification"
+            )
         delta = np.abs(updated - c) * UM_PER_MM
         c = updated
         if float(np.max(delta, initial=0.0)) <= tolerance_um:

@@ -118,6 +118,9 @@ class RewriteResult:
     tool_offset_mm: tuple[float, float, float]
     flags: tuple[str, ...]
     notes: tuple[str, ...]
+    #: Where the largest correction is applied: the nominal point (mm) and the program line.
+    max_correction_at_mm: tuple[float, float, float] | None = None
+    max_correction_line: int | None = None
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -520,7 +523,9 @@ class _Rewriter:
             nominal = np.concatenate([p for p, _ in samples])
             commands = invert(self.source, nominal, approach, tool_offset).commanded_mm
             self._flag_range(nominal, owners, events)
-        output, points_out, max_corr = self._emit(events, samples, commands, tool_offset)
+        output, points_out, (max_corr, at_mm, at_line) = self._emit(
+            events, samples, commands, tool_offset
+        )
         unset = sorted(c for c in self.used_work_offsets if c not in self.options.work_offsets_mm)
         if unset:
             self.notes.append(
@@ -536,6 +541,8 @@ class _Rewriter:
             tool_offset_mm=tool_offset,
             flags=tuple(self.flags),
             notes=tuple(self.notes),
+            max_correction_at_mm=at_mm,
+            max_correction_line=at_line,
         )
 
     def _samples(self, moves: list[_Move]) -> tuple[list[tuple[FloatArray, FloatArray]], list[int]]:
@@ -579,7 +586,8 @@ class _Rewriter:
         samples: list[tuple[FloatArray, FloatArray]],
         commands: FloatArray,
         tool_offset: tuple[float, float, float],
-    ) -> tuple[str, int, float]:
+    ) -> tuple[str, int, tuple[float, tuple[float, float, float] | None, int | None]]:
+        """The program text, the points written and the largest correction (µm, where, line)."""
         opts = self.options
         header = [
             "(volucal volumetric compensation: every target point corrected, feed moves split)",
@@ -599,7 +607,7 @@ class _Rewriter:
         command_now: FloatArray | None = None
         cursor = 0
         points_out = 0
-        max_corr = 0.0
+        largest: tuple[float, tuple[float, float, float] | None, int | None] = (0.0, None, None)
         for event in events:
             if isinstance(event, str):
                 out.append(event)
@@ -645,8 +653,12 @@ class _Rewriter:
             command = commands[:count]
             commands = commands[count:]
             cursor += 1
-            corr = np.max(np.abs(command - nominal)) * UM_PER_MM
-            max_corr = max(max_corr, float(corr))
+            size = np.max(np.abs(command - nominal), axis=1) * UM_PER_MM
+            worst = int(np.argmax(size)) if len(size) else 0
+            if len(size) and not float(size[worst]) <= largest[0]:  # NaN counts as largest
+                point = (float(nominal[worst, 0]), float(nominal[worst, 1]),
+                         float(nominal[worst, 2]))
+                largest = (float(size[worst]), point, block.number)
             keep = self._keep(event.move, nominal, command)
             offset = self.work_offset(work) + g92_controller
             code = "G0" if event.move.rapid else "G1"
@@ -668,7 +680,7 @@ class _Rewriter:
             if event.after:
                 out.append(prefix + " ".join(event.after))
             command_now = command[-1]
-        return "\n".join(out) + "\n", points_out, max_corr
+        return "\n".join(out) + "\n", points_out, largest
 
     def _keep(self, move: _Move, nominal: FloatArray, command: FloatArray) -> list[int]:
         """Indices of the points to emit (index 0 is the start point and is never emitted).

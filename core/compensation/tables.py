@@ -33,6 +33,7 @@ from ..machine import AXES, AXIS_INDEX
 from ..progress import CancelToken, ProgressCallback, check, report
 from ..userror import UserError
 from .inverse import invert
+from .limits import MAX_TABLE_NODES, check_sizes, node_count
 from .source import ErrorSource, measured_range
 
 FloatArray = NDArray[np.float64]
@@ -198,9 +199,15 @@ def equidistant_spacing(position_mm: FloatArray) -> float | None:
 
 
 def even_nodes(low: float, high: float, spacing_mm: float) -> FloatArray:
-    """Nodes dividing [low, high] into equal intervals no longer than ``spacing_mm``."""
-    intervals = max(1, math.ceil((high - low) / spacing_mm - 1e-9))
-    return np.linspace(low, high, intervals + 1)
+    """Nodes dividing [low, high] into equal intervals no longer than ``spacing_mm`` (at most
+    :data:`~.limits.MAX_TABLE_NODES`, checked before they are made)."""
+    count = node_count(low, high, spacing_mm, "spacing")
+    if count > MAX_TABLE_NODES:
+        raise UserError(
+            f"a spacing of {spacing_mm:g} mm gives {count:,} nodes over [{low:g}, {high:g}] mm; "
+            f"volucal computes at most {MAX_TABLE_NODES:,}: use a larger spacing"
+        )
+    return np.linspace(low, high, count)
 
 
 def build_tables(
@@ -346,6 +353,7 @@ def _grid(
 ) -> VolumetricGrid:
     if not math.isfinite(spacing_mm) or spacing_mm <= 0:
         raise UserError(f"grid spacing must be a positive number of mm, got {spacing_mm}")
+    check_sizes({a: extents[a] for a in AXES}, None, spacing_mm)
     axes = [even_nodes(*extents[a], spacing_mm) for a in AXES]
     mesh = np.meshgrid(*axes, indexing="ij")
     points = np.stack([m.ravel() for m in mesh], axis=-1)

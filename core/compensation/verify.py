@@ -34,6 +34,7 @@ from ..machine import AXES, AXIS_INDEX
 from ..progress import CancelToken, ProgressCallback, check, report
 from .controller import axis_compensation, reversal_compensation
 from .inverse import invert
+from .limits import check_sizes
 from .source import ErrorSource, measured_range
 from .tables import CompensationTables, VolumetricGrid, even_nodes
 
@@ -254,6 +255,7 @@ def verification_points(
     extents: Mapping[str, tuple[float, float]], spacing_mm: float
 ) -> FloatArray:
     """The regular grid at ``spacing_mm`` plus the centres of its cells, (n, 3) mm."""
+    check_sizes({a: extents[a] for a in AXES}, None, spacing_mm)
     nodes = [even_nodes(*extents[a], spacing_mm) for a in AXES]
     centres = [(v[:-1] + v[1:]) / 2.0 for v in nodes]
     sets = []

@@ -43,8 +43,18 @@ def test_every_format_writes_its_files_and_a_manifest(source, tmp_path: Path) ->
 def test_linuxcnc_point_limit_names_the_spacing_that_fits(source, tmp_path: Path) -> None:
     with pytest.raises(TableLimitError, match=r"at most 256.*at least 1\.569 mm \(--spacing\)"):
         export_model(source, "linuxcnc", tmp_path, ExportOptions(spacing_mm=1.0))
-    # The limit can be raised when the controller allows more.
-    export_model(source, "linuxcnc", tmp_path, ExportOptions(spacing_mm=1.0, max_points=401))
+    # 256 is compiled into LinuxCNC's motion module: --max-points cannot raise it ...
+    with pytest.raises(UserError, match=r"--max-points 401: .* at most 256 .*can only lower"):
+        export_model(source, "linuxcnc", tmp_path, ExportOptions(spacing_mm=1.0, max_points=401))
+    # ... but can lower it, for a table the control keeps smaller.
+    with pytest.raises(TableLimitError, match=r"at most 30; .*at least 13\.794 mm"):
+        export_model(source, "linuxcnc", tmp_path, ExportOptions(max_points=30))
+
+
+def test_configurable_limits_can_be_raised(source, tmp_path: Path) -> None:
+    with pytest.raises(TableLimitError, match=r"at most 5000.*or raise the controller's limit"):
+        export_model(source, "siemens", tmp_path, ExportOptions(spacing_mm=0.07))
+    export_model(source, "siemens", tmp_path, ExportOptions(spacing_mm=0.07, max_points=6000))
 
 
 def test_fanuc_point_numbers_limit(source, tmp_path: Path) -> None:
@@ -54,7 +64,8 @@ def test_fanuc_point_numbers_limit(source, tmp_path: Path) -> None:
 
 def test_fanuc_increment_range_sets_the_magnification(tmp_path: Path) -> None:
     big = ModelSource(paper_like_model().scaled(60.0))  # hundreds of µm per interval
-    result = export_model(big, "fanuc", tmp_path, ExportOptions(spacing_mm=50.0))
+    large = {"max_correction_um": None}  # beyond the plausibility limit, on purpose
+    result = export_model(big, "fanuc", tmp_path, ExportOptions(spacing_mm=50.0, **large))
     magnification = result.details["parameters"]["3623"]
     assert max(magnification.values()) > 1
     values = [
@@ -66,7 +77,8 @@ def test_fanuc_increment_range_sets_the_magnification(tmp_path: Path) -> None:
     # Beyond 127 × 100 detection units per interval no magnification fits.
     with pytest.raises(TableLimitError, match="smaller"):
         export_model(
-            big, "fanuc", tmp_path, ExportOptions(spacing_mm=50.0, fanuc_detection_unit_um=0.01)
+            big, "fanuc", tmp_path,
+            ExportOptions(spacing_mm=50.0, fanuc_detection_unit_um=0.01, **large),
         )
 
 
