@@ -56,17 +56,30 @@ def first_order_response(time_s: FloatArray, values: FloatArray, tau_s: float) -
     t = np.asarray(time_s, dtype=float)
     h = np.diff(t)
     if np.allclose(h, h[0], rtol=1e-9, atol=0.0):
-        a = math.exp(-h[0] / tau_s)
-        q = tau_s * (1.0 - a) / h[0]
+        a, b_new, b_old = _hold_weights(np.array([h[0] / tau_s]))
         start = x[:1]
-        return lfilter([1.0 - q, q - a], [1.0, -a], x - start, axis=0) + start
-    a_k = np.exp(-h / tau_s)
-    q_k = tau_s * (1.0 - a_k) / h
+        return lfilter([b_new[0], b_old[0]], [1.0, -a[0]], x - start, axis=0) + start
+    a_k, new_k, old_k = _hold_weights(h / tau_s)
     out = np.empty_like(x)
     out[0] = x[0]
     for k in range(h.size):
-        out[k + 1] = a_k[k] * out[k] + (1.0 - q_k[k]) * x[k + 1] + (q_k[k] - a_k[k]) * x[k]
+        out[k + 1] = a_k[k] * out[k] + new_k[k] * x[k + 1] + old_k[k] * x[k]
     return out
+
+
+def _hold_weights(x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Weights of F(k+1) = a·F(k) + b_new·T(k+1) + b_old·T(k) for steps x = h/τ.
+
+    a = e^(−x); b_new = 1 − (1 − a)/x; b_old = (1 − a) − b_new. Written with expm1 and, for
+    small x, the series of b_new = x/2 − x²/6 + x³/24 − …, so that a step much shorter than τ
+    (a controller's millisecond against minutes) loses no digits to cancellation.
+    """
+    one_minus_a = -np.expm1(-x)
+    with np.errstate(all="ignore"):
+        direct = (x + np.expm1(-x)) / x
+    series = x * (0.5 - x * (1 / 6 - x * (1 / 24 - x * (1 / 120 - x / 720))))
+    b_new = np.where(x < 1e-2, series, direct)
+    return 1.0 - one_minus_a, b_new, one_minus_a - b_new
 
 
 # --------------------------------------------------------------------------------------------
