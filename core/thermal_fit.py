@@ -79,6 +79,7 @@ class ThermalFitOptions:
     initial_fraction: float = 0.5
     dynamic: bool = True
     quadratic: bool = True
+    prune: bool = True
     min_improvement: float = 0.02
     time_constants_s: tuple[float, ...] | None = None
     sensors: tuple[str, ...] | None = None
@@ -432,6 +433,22 @@ def fit_thermal(
             decisions.append(
                 f"lags: not kept, the static model leaves no lag they remove (best CV RMS "
                 f"{lagged_cv:.3f} {sym} against {current:.3f} {sym} static)")
+
+    # parsimony: a term whose removal costs less than min_improvement goes (the static sensor
+    # choice may have taken an extra sensor to stand in for a lag the lags now model)
+    if options.prune and len(terms) > 1:
+        best_cv = current
+        while len(terms) > 1:
+            check(cancel)
+            trials = [(score(terms[:i] + terms[i + 1:]), i) for i in range(len(terms))]
+            value, index = min(trials)
+            if value > best_cv * (1 + options.min_improvement):
+                break
+            decisions.append(f"term {terms[index].label()}: removed, CV RMS {current:.3f} → "
+                             f"{value:.3f} {sym} without it")
+            terms = terms[:index] + terms[index + 1:]
+            current = value
+            best_cv = min(best_cv, value)
 
     # 3. squared terms
     if options.quadratic:

@@ -180,7 +180,7 @@ def read_thermal_table(
     else:
         assert fmt.sample_interval_s is not None
         time_s = np.arange(count, dtype=float) * fmt.sample_interval_s
-        time_source = f"declared sample interval {fmt.sample_interval_s:g} s (no time column)"
+        time_source = f"no time column, declared sample interval {fmt.sample_interval_s:g} s"
 
     errors = []
     for j, (spec, col, unit) in enumerate(zip(fmt.errors, error_cols, error_units, strict=True)):
