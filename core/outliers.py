@@ -78,6 +78,7 @@ def screen(
     """Flag readings and runs far outside the run-to-run spread (see the module notes)."""
     x = data.deviations
     residual = np.full(x.shape, np.nan)
+    trended: set[int] = set()
     for direction in (1, -1):
         rows = np.flatnonzero(data.run_direction == direction)
         if rows.size < 3:
@@ -87,6 +88,7 @@ def screen(
             times = _run_times(data, rows)
             for target in range(x.shape[1]):
                 residual[rows, target] = trend_residual(times, block[:, target], min_sigma)
+            trended.add(direction)
             continue
         for position, row in enumerate(rows):
             others = np.delete(block, position, axis=0)
@@ -116,13 +118,16 @@ def screen(
                 float(np.nanmedian(score[run])),
             ))
             continue
+        reference = (f"the smooth trend over time of the other {sense} runs"
+                     if data.run_direction[run] in trended else
+                     f"the median of the other {sense} runs")
         for target in hits:
             r = float(residual[run, target])
             flags.append(OutlierFlag(
                 line, run + 1, int(target) + 1, float(data.targets_mm[target]),
                 float(x[run, target]),
                 f"reading at {data.targets_mm[target]:g} mm, run {run + 1} ({sense}) is "
-                f"{r:+.3f} {symbol} from the median of the other {sense} runs: "
+                f"{r:+.3f} {symbol} from {reference}: "
                 f"{abs(r) / sigma:.1f} σ of the run-to-run spread (σ = {sigma:.3f} {symbol})",
                 float(score[run, target]),
             ))
@@ -151,11 +156,19 @@ def _run_times(data: LineData, rows: np.ndarray) -> np.ndarray:
 
 def trend_residual(time_s: np.ndarray, values: np.ndarray, min_sigma: float = 0.05,
                    threshold: float = 5.0, half_window: int = TREND_HALF_WINDOW) -> np.ndarray:
-    """Each value minus its leave-one-out local trend (module notes); NaN where a value is
-    missing or has fewer than three neighbours. Values need not be in time order."""
+    """Each value's standardised distance from its leave-one-out local trend, in the values'
+    unit (module notes); NaN where a value is missing or has too few neighbours. Values need
+    not be in time order.
+
+    The trend is a local quadratic through the neighbours (a line would cut the corner of a
+    warm-up's early curvature); its prediction at the left-out sample is less certain at the
+    ends of a record, where the neighbours lie on one side only, so each residual is divided by
+    √(1 + h), h the prediction's leverage (its variance in units of the scatter), which makes
+    all residuals comparable with one σ.
+    """
     out = np.full(values.shape, np.nan)
     finite = np.flatnonzero(np.isfinite(values) & np.isfinite(time_s))
-    if finite.size < 4:
+    if finite.size < 5:
         return out
     order = finite[np.argsort(time_s[finite], kind="stable")]
     t = np.asarray(time_s, dtype=float)[order]
@@ -164,28 +177,26 @@ def trend_residual(time_s: np.ndarray, values: np.ndarray, min_sigma: float = 0.
     step = float(np.median(np.diff(t))) or 1.0
     t = (t - t[0]) / step
     weights = np.ones(x.size)
-    residual = _local_line_residual(t, x, weights, half_window)
+    residual = _local_trend_residual(t, x, weights, half_window)
     finite_residual = residual[np.isfinite(residual)]
     if finite_residual.size:
         sigma = max(ROBUST_SIGMA * float(np.median(np.abs(finite_residual))), min_sigma)
         suspect = np.abs(residual) > threshold * sigma
         if suspect.any():
             weights[suspect] = 0.0
-            residual = _local_line_residual(t, x, weights, half_window)
+            residual = _local_trend_residual(t, x, weights, half_window)
     out[order] = residual
     return out
 
 
-def _local_line_residual(t: np.ndarray, x: np.ndarray, w: np.ndarray,
-                         half_window: int) -> np.ndarray:
-    """x_i minus the weighted least-squares line through its neighbours j ≠ i, |i − j| ≤ h,
-    evaluated at t_i (vectorised over i: one pass per offset)."""
+def _local_trend_residual(t: np.ndarray, x: np.ndarray, w: np.ndarray,
+                          half_window: int) -> np.ndarray:
+    """(x_i − q_i(t_i)) / √(1 + h_i): q_i the weighted least-squares quadratic through the
+    neighbours j ≠ i, |i − j| ≤ half_window, h_i its leverage at t_i (vectorised over i: one
+    pass per offset, then one batched 3 × 3 solve)."""
     n = x.size
-    s0 = np.zeros(n)
-    s1 = np.zeros(n)
-    s2 = np.zeros(n)
-    sx = np.zeros(n)
-    stx = np.zeros(n)
+    moments = np.zeros((n, 5))  # Σ w·dt^k, k = 0…4
+    rhs = np.zeros((n, 3))  # Σ w·dt^k·x, k = 0…2
     for offset in range(-half_window, half_window + 1):
         if offset == 0:
             continue
@@ -195,18 +206,21 @@ def _local_line_residual(t: np.ndarray, x: np.ndarray, w: np.ndarray,
         i = np.arange(lo, hi)
         j = i + offset
         dt = t[j] - t[i]
-        wj = w[j]
-        s0[i] += wj
-        s1[i] += wj * dt
-        s2[i] += wj * dt * dt
-        sx[i] += wj * x[j]
-        stx[i] += wj * dt * x[j]
-    determinant = s0 * s2 - s1 * s1
-    with np.errstate(all="ignore"):
-        # the line's value at dt = 0 (its intercept), from the 2×2 normal equations
-        level = (s2 * sx - s1 * stx) / determinant
-    usable = (s0 >= 3) & (determinant > 1e-12 * np.maximum(s0 * s2, 1e-300))
-    return np.where(usable, x - level, np.nan)
+        powers = w[j][:, None] * dt[:, None] ** np.arange(5)
+        moments[i] += powers
+        rhs[i] += powers[:, :3] * x[j][:, None]
+    normal = np.stack([moments[:, k:k + 3] for k in range(3)], axis=1)
+    usable = moments[:, 0] >= 5
+    normal[~usable] = np.eye(3)
+    scale = np.sqrt(np.abs(np.diagonal(normal, axis1=1, axis2=2)))  # equilibrate, then solve
+    scale[scale == 0] = 1.0
+    balanced = normal / scale[:, :, None] / scale[:, None, :]
+    well_posed = usable & (np.linalg.cond(balanced) < 1e10)
+    balanced[~well_posed] = np.eye(3)
+    inverse = np.linalg.inv(balanced) / scale[:, :, None] / scale[:, None, :]
+    level = np.einsum("ij,ij->i", inverse[:, 0, :], rhs)
+    leverage = inverse[:, 0, 0]
+    return np.where(well_posed, (x - level) / np.sqrt(1.0 + leverage), np.nan)
 
 
 @dataclass(frozen=True)
