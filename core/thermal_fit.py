@@ -152,6 +152,9 @@ class ThermalFitResult:
     time_s: FloatArray = field(repr=False)
     measured: FloatArray = field(repr=False)
     predicted: FloatArray = field(repr=False)
+    #: per term, the standard deviation over the record of its contribution c·(F − R)^p, in
+    #: the channel's unit: how much of the error the term carries (the view's sensor weights)
+    term_spread: tuple[float, ...] = ()
     outliers: tuple[SeriesFlag, ...] = ()
     warnings: tuple[str, ...] = ()
     elapsed_s: float = 0.0
@@ -190,6 +193,10 @@ class ThermalFitResult:
             "subsets": [{"size": len(s.sensors), "sensors": list(s.sensors),
                          f"cv_rms_{self.unit}": s.cv_rms} for s in self.subsets],
             "decisions": list(self.decisions),
+            "weights": [{"term": t.label(), "sensor": t.sensor, "coefficient": float(c),
+                         f"spread_{self.unit}": w}
+                        for t, c, w in zip(self.model.terms, self.model.coefficients,
+                                           self.term_spread, strict=True)],
             "baselines": [
                 {"name": b.name, "sensors": list(b.sensors), f"train_rms_{self.unit}": b.train_rms,
                  f"cv_rms_{self.unit}": b.cv_rms, f"test_rms_{self.unit}": b.test_rms}
@@ -470,7 +477,10 @@ def fit_thermal(
     report(progress, 0.9, "fitting and validating")
     time_s = measurement.time_s
     model = fit_model(channel.name, unit, time_s, y, temperatures, terms, train)
-    predicted = model.predict(time_s, temperatures)
+    design = model.design(time_s, temperatures)
+    predicted = design @ np.concatenate([[model.intercept], model.coefficients])
+    spread = tuple(float(np.std(design[:, k + 1] * c)) for k, c in
+                   enumerate(model.coefficients))
     residual = y - predicted
     train_rms = _rms(residual[train])
     test_rms = _rms(residual[test]) if train_n < n else None
@@ -502,6 +512,7 @@ def fit_thermal(
         time_s=time_s,
         measured=y,
         predicted=predicted,
+        term_spread=spread,
         outliers=outliers,
         warnings=measurement.warnings,
         elapsed_s=time.perf_counter() - started,
