@@ -86,8 +86,8 @@ def screen(
         block = x[rows]
         if rows.size >= MIN_TREND_RUNS:
             times = _run_times(data, rows)
-            for target in range(x.shape[1]):
-                residual[rows, target] = trend_residual(times, block[:, target], min_sigma)
+            for column in range(x.shape[1]):
+                residual[rows, column] = trend_residual(times, block[:, column], min_sigma)
             trended.add(direction)
             continue
         for position, row in enumerate(rows):
@@ -118,16 +118,16 @@ def screen(
                 float(np.nanmedian(score[run])),
             ))
             continue
-        reference = (f"the smooth trend over time of the other {sense} runs"
-                     if data.run_direction[run] in trended else
-                     f"the median of the other {sense} runs")
+        against = (f"the smooth trend over time of the other {sense} runs"
+                   if data.run_direction[run] in trended else
+                   f"the median of the other {sense} runs")
         for target in hits:
             r = float(residual[run, target])
             flags.append(OutlierFlag(
                 line, run + 1, int(target) + 1, float(data.targets_mm[target]),
                 float(x[run, target]),
                 f"reading at {data.targets_mm[target]:g} mm, run {run + 1} ({sense}) is "
-                f"{r:+.3f} {symbol} from {reference}: "
+                f"{r:+.3f} {symbol} from {against}: "
                 f"{abs(r) / sigma:.1f} σ of the run-to-run spread (σ = {sigma:.3f} {symbol})",
                 float(score[run, target]),
             ))

@@ -296,8 +296,8 @@ def best_subsets(scorer: _Scorer, candidates: int, max_size: int, exhaustive_lim
             subsets = np.array(list(combinations(range(candidates), k)), dtype=np.int64)
             scores = np.concatenate([scorer.rms(chunk) for chunk in
                                      np.array_split(subsets, max(1, len(subsets) // 4000))])
-            best = int(np.argmin(scores))
-            out.append((tuple(int(i) for i in subsets[best]), float(scores[best])))
+            top = int(np.argmin(scores))
+            out.append((tuple(int(i) for i in subsets[top]), float(scores[top])))
         return out
     chosen: list[int] = []
     for _k in sizes:

@@ -17,12 +17,14 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .report_content import Paragraph, Section, Table
 from .thermal_fit import ThermalFitResult
 from .thermal_store import jsonable, load_thermal, thermal_names
 
 UNIT_TEXT = {"um": "µm", "urad": "µrad"}
+Series = Sequence[float] | NDArray[np.float64]
 #: The plot keeps at most this many points per curve (a PDF does not need 5,000 per line).
 PLOT_POINTS = 1200
 
@@ -65,8 +67,8 @@ def sections_for_project(project: Any) -> list[Section]:
     return out
 
 
-def section_from_summary(summary: Mapping[str, Any], time_s: Sequence[float],
-                         measured: Sequence[float], predicted: Sequence[float]) -> Section:
+def section_from_summary(summary: Mapping[str, Any], time_s: Series, measured: Series,
+                         predicted: Series) -> Section:
     """The section from a result's JSON summary (``ThermalFitResult.to_json``) and its series."""
     unit = str(summary["unit"])
     sym = UNIT_TEXT.get(unit, unit)
@@ -84,7 +86,8 @@ def section_from_summary(summary: Mapping[str, Any], time_s: Sequence[float],
         f"Thermal record {summary['measurement']}, error channel {channel} ({sym}). {split} "
         f"Cross-validation: {summary['cross_validation']}."))
     blocks.append(Paragraph(str(model["formula"]), "note"))
-    rows = [("constant", f"{model['intercept']:.4f}", f"{model['intercept_std']:.4f}", sym)]
+    rows: list[tuple[str, ...]] = [
+        ("constant", f"{model['intercept']:.4f}", f"{model['intercept_std']:.4f}", sym)]
     for term, weight in zip(model["terms"], summary.get("weights", []), strict=False):
         rows.append((
             f"{term['label']} (centred on {term['reference_c']:.2f} °C)",
@@ -129,8 +132,8 @@ def section_from_summary(summary: Mapping[str, Any], time_s: Sequence[float],
     return Section(f"Thermal error: {channel} ({summary['measurement']})", tuple(blocks))
 
 
-def thermal_plot(title: str, unit: str, time_s: Sequence[float], measured: Sequence[float],
-                 predicted: Sequence[float], split_s: float | None) -> ThermalPlot:
+def thermal_plot(title: str, unit: str, time_s: Series, measured: Series, predicted: Series,
+                 split_s: float | None) -> ThermalPlot:
     """The plot block, thinned to at most ``PLOT_POINTS`` points (evenly by sample)."""
     t = np.asarray(time_s, dtype=float)
     keep = np.unique(np.linspace(0, t.size - 1, min(PLOT_POINTS, t.size)).round().astype(int))

@@ -316,7 +316,8 @@ def _width(source: SourceText, fmt: ThermalTableFormat, delimiter: str | None,
 def _error_unit(source: SourceText, spec: ErrorColumn, names: list[tuple[str, str | None]],
                 index: int, header: tuple[str, ...], where: int) -> str:
     declared = normalise_unit(spec.unit) if spec.unit is not None else None
-    from_header = normalise_unit(names[index][1]) if header and names[index][1] else None
+    header_unit = names[index][1] if header else None
+    from_header = normalise_unit(header_unit) if header_unit else None
     label = _label(header, index)
     if declared and from_header and declared != from_header:
         raise source.error(f"error column {label}: the unit is declared as {spec.unit!r} but the "
@@ -366,7 +367,8 @@ def _time_factor(source: SourceText, fmt: ThermalTableFormat,
     if index is None:
         return 1.0
     declared = normalise_unit(fmt.time_unit) if fmt.time_unit else None
-    from_header = normalise_unit(names[index][1]) if header and names[index][1] else None
+    header_unit = names[index][1] if header else None
+    from_header = normalise_unit(header_unit) if header_unit else None
     if declared and from_header and declared != from_header:
         raise source.error(f"time column {_label(header, index)}: the unit is declared as "
                            f"{fmt.time_unit!r} but the header says {names[index][1]!r}", where)
