@@ -86,6 +86,13 @@ def register(subparsers: Any) -> None:
                      help="period of the HAL thread the snippet runs in (default %(default)s)")
     out.add_argument("--hal-thread", default="servo-thread",
                      help="HAL thread the snippet adds its functions to (default %(default)s)")
+    out.add_argument("--hal-axis", choices=("x", "y", "z"),
+                     help="also write <name>-eoffset.hal, which applies the compensation as "
+                     "LinuxCNC's external offset of this axis (needs [AXIS_L]OFFSET_AV_RATIO)")
+    out.add_argument("--hal-loaded", metavar="COMPONENTS",
+                     help="HAL components your configuration loads already (e.g. "
+                     "lowpass,scale,not): the snippet lists its names for your own loadrt line "
+                     "instead of loading them again")
     out.add_argument("--project", type=Path, metavar="P.h5",
                      help="store the record and its models in this project (created if missing) "
                      "under /thermal/<name>")
@@ -152,8 +159,10 @@ def run(args: argparse.Namespace) -> int:
     options = fit_options(args)
     export_options = None
     if args.export is not None:
+        loaded = tuple(c.strip() for c in (args.hal_loaded or "").split(",") if c.strip())
         export_options = ThermalExportOptions(
-            thread=args.hal_thread, period_s=parse_duration(args.hal_period, "--hal-period"))
+            thread=args.hal_thread, period_s=parse_duration(args.hal_period, "--hal-period"),
+            axis=args.hal_axis, loaded=loaded)
     if args.name and len(args.files) > 1:
         raise UserError("--name names one record: give one FILE with it")
     entries = []

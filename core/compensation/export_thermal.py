@@ -10,9 +10,9 @@ tool that moved +Z) and temperatures in °C. The compensation is the opposite, `
 Files written by :func:`export_thermal` (``<name>`` is the HAL prefix, ``thermal-<channel>``):
 
 - ``<name>.hal``: the model in standard LinuxCNC HAL components (``lowpass`` for each lag, with
-  ``gain = 1 − exp(−P/τ)`` for the thread period P; ``scale`` to centre a temperature; ``mult2``
-  for a squared term; a chain of ``sum2`` for the weighted sum and the constant; ``scale`` for the
-  compensation in mm; ``timedelay`` and ``not`` hold every lag at its input for the first
+  ``gain = 1 − exp(−P/τ)`` for the thread period P; ``sum2`` to centre a temperature, for the
+  weighted sum and the constant (a chain) and for the compensation in mm; ``mult2`` for a squared
+  term; ``timedelay`` and ``not`` hold every lag at its input for the first
   ``load_delay_s`` so that the filters start at the current temperatures, as the model assumes).
   Inputs are HAL signals in °C, one per sensor (``thermal-<sensor>-degc`` unless renamed): the
   user connects each to the pin that reads that sensor. Outputs: the signal ``<name>-error-um``
@@ -21,6 +21,10 @@ Files written by :func:`export_thermal` (``<name>`` is the HAL prefix, ``thermal
   kinematics input.
 - ``<name>.json``: the model, its uncertainty and validation, the HAL names, and check points.
 - ``<name>.csv``: the same model as a table (one row per term, the constant first), and
+- ``<name>-eoffset.hal`` (with ``axis``): the compensation wired to LinuxCNC's external offset
+  of that axis (``axis.L.eoffset-counts`` through ``sum2`` and ``conv_float_s32``,
+  ``eoffset-scale`` the
+  resolution, ``eoffset-enable`` set); the INI needs ``[AXIS_L]OFFSET_AV_RATIO``.
 - ``<name>-check.csv``: steady-state check points — temperatures held long enough for every lag
   to settle, and the error and compensation the controller must then output — to test any
   implementation of the model against volucal's.
@@ -64,6 +68,16 @@ class ThermalExportOptions:
         depend on it: re-export for another period).
     sensor_signals : HAL signal (°C) per sensor name; default ``thermal-<sensor>-degc``.
     load_delay_s : the lags follow their inputs exactly for this long after HAL starts.
+    axis : also write ``<name>-eoffset.hal``, which applies the compensation as LinuxCNC's
+        external offset of this axis (``x``, ``y`` or ``z``; LinuxCNC 2.8 and later): it needs
+        ``OFFSET_AV_RATIO`` (e.g. 0.1) in the axis' INI section and is sourced after motion is
+        loaded (a later ``[HAL] HALFILE``). None writes no wiring: connect ``<name>-comp-mm``
+        yourself.
+    count_mm : the external offset's resolution (``eoffset-scale``), mm per count.
+    loaded : components the HAL configuration already loads (HAL loads a component once: the
+        simulated configurations of LinuxCNC load ``lowpass`` and ``scale``, many machines
+        ``not``): for these the snippet has no ``loadrt`` line but a comment giving the names to
+        add to the configuration's own ``loadrt`` line.
     """
 
     prefix: str | None = None
@@ -71,8 +85,15 @@ class ThermalExportOptions:
     period_s: float = 0.001
     sensor_signals: Mapping[str, str] = field(default_factory=dict)
     load_delay_s: float = 1.0
+    axis: str | None = None
+    count_mm: float = 1e-5
+    loaded: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        if self.axis is not None and self.axis.lower() not in ("x", "y", "z"):
+            raise UserError(f"external offset axis {self.axis!r}: use x, y or z")
+        if not (self.count_mm > 0 and math.isfinite(self.count_mm)):
+            raise UserError("the external offset resolution must be a positive number of mm")
         if not (self.period_s > 0 and math.isfinite(self.period_s)):
             raise UserError("the HAL thread period must be a positive number of seconds")
         if not (self.load_delay_s > 0 and math.isfinite(self.load_delay_s)):
@@ -124,6 +145,8 @@ def export_thermal(
         write_text(folder / f"{prefix}.csv", _csv(model)),
         write_text(folder / f"{prefix}-check.csv", _check_csv(model, plan)),
     ]
+    if options.axis is not None:
+        files.append(write_text(folder / f"{prefix}-eoffset.hal", plan.eoffset_text()))
     return ThermalExport(
         files=tuple(files),
         prefix=prefix,
@@ -164,15 +187,59 @@ class _HalPlan:
         self.squares = {k: f"{prefix}-sq{k}" for k, t in enumerate(model.terms) if t.power == 2}
         self.sums = [f"{prefix}-sum{k}" for k in range(max(1, len(model.terms) - 1))]
         self.comp = f"{prefix}-comp"
+        # with an axis, the compensation in offset counts (the conversion to s32 and the axis
+        # pins are in the -eoffset file, sourced once motion is loaded)
+        self.to_counts = [f"{prefix}-tocounts"] if options.axis is not None else []
+        self.eoffset_parts = (f"{prefix}-ready", f"{prefix}-gate", f"{prefix}-counts")
         self.start = f"{prefix}-start"
         self.hold = f"{prefix}-hold"
         self.error_signal = f"{prefix}-error-um"
         self.comp_signal = f"{prefix}-comp-mm"
         self.load_signal = f"{prefix}-load"
         longest = max([len(n) for n in [*self.lags.values(), *self.centres.values(),
-                                          *self.squares.values(), *self.sums, self.comp]])
+                                          *self.squares.values(), *self.sums, self.comp,
+                                          *self.to_counts]])
         if longest > MAX_INSTANCE_NAME:
             raise UserError(f"HAL prefix {prefix!r} is too long; choose a shorter --hal-prefix")
+
+    def eoffset_text(self) -> str:
+        """The wiring of the compensation to the external offset of one axis (pins of motion,
+        which must be loaded first; the components are in the main snippet)."""
+        o = self.options
+        axis = (o.axis or "z").lower()
+        ready, gate, counts = self.eoffset_parts
+        return "\n".join([
+            f"# volucal thermal compensation of '{_ascii(self.model.channel)}' applied as the "
+            f"external offset of axis {axis.upper()}",
+            f"# Source after {self.prefix}.hal and after motion is loaded (a later [HAL] "
+            "HALFILE).",
+            f"# The INI needs [AXIS_{axis.upper()}]OFFSET_AV_RATIO (e.g. 0.1): the share of the "
+            "axis' velocity",
+            "# and acceleration that external offsets may use.",
+            f"# Offset = {self.comp_signal} = -predicted error, in counts of {_num(o.count_mm)} mm "
+            "(truncated",
+            "# toward zero: within one count). LinuxCNC applies changes of the counts while the",
+            "# offset is enabled and zeroes its register at each machine start, so the counts are",
+            "# held at 0 until the machine is on and homed, then follow the compensation.",
+            "",
+            f"net {self.prefix}-machine-on motion.motion-enabled => {ready}.in0",
+            f"net {self.prefix}-homed motion.is-all-homed => {ready}.in1",
+            f"net {self.prefix}-eoffset-ready {ready}.out => {gate}.sel "
+            f"axis.{axis}.eoffset-enable",
+            f"net {self.prefix}-eoffset-counts {counts}.out => axis.{axis}.eoffset-counts",
+            f"setp axis.{axis}.eoffset-scale {_num(o.count_mm)}",
+            "",
+        ])
+
+    def loadrt(self, component: str, names: list[str]) -> list[str]:
+        """The ``loadrt`` line, or for a component the configuration loads already, what to add
+        to its own line."""
+        if not names:
+            return []
+        if component in self.options.loaded:
+            return [f"# {component} is loaded by your configuration: add to its 'loadrt "
+                    f"{component}' line the names {','.join(names)}"]
+        return [f"loadrt {component} names={','.join(names)}"]
 
     def gain(self, tau_s: float) -> float:
         return -math.expm1(-self.options.period_s / tau_s)
@@ -204,24 +271,28 @@ class _HalPlan:
             f"# For the first {o.load_delay_s:g} s the lags follow their inputs ({self.load_signal}"
             " is TRUE),",
             "# so the filters start at the current temperatures, as the model assumes.",
-            "# If your configuration already loads one of these components, add these names to",
-            "# its loadrt line instead (a component is loaded once).",
+            "# HAL loads a component once: if your configuration already loads one of these",
+            "# components, export again naming it (volucal thermal --hal-loaded lowpass,...):",
+            "# its names are then listed here for your own loadrt line.",
             "",
         ]
         loads: list[tuple[str, list[str]]] = [
             ("timedelay", [self.start]),
             ("not", [self.hold]),
             ("lowpass", list(self.lags.values())),
-            ("scale", [*self.centres.values(), self.comp]),
             ("mult2", list(self.squares.values())),
-            ("sum2", self.sums),
+            ("sum2", [*self.centres.values(), *self.sums, self.comp, *self.to_counts]),
         ]
+        if self.to_counts:
+            ready, gate, counts = self.eoffset_parts
+            loads += [("and2", [ready]), ("mux2", [gate]), ("conv_float_s32", [counts])]
         for component, names in loads:
-            if names:
-                lines.append(f"loadrt {component} names={','.join(names)}")
+            lines += self.loadrt(component, names)
         lines.append("")
         order = [self.start, self.hold, *self.lags.values(), *self.centres.values(),
-                 *self.squares.values(), *self.sums, self.comp]
+                 *self.squares.values(), *self.sums, self.comp, *self.to_counts]
+        if self.to_counts:
+            order += list(self.eoffset_parts)
         lines += [f"addf {name} {o.thread}" for name in order]
         lines += [
             "",
@@ -244,12 +315,13 @@ class _HalPlan:
                 lines += [
                     f"setp {lag}.gain {_num(self.gain(tau))}",
                     f"net {signal} => {lag}.in",
-                    f"net {lag}-out {lag}.out => {centre}.in",
+                    f"net {lag}-out {lag}.out => {centre}.in0",
                 ]
             else:
-                lines.append(f"net {signal} => {centre}.in")
+                lines.append(f"net {signal} => {centre}.in0")
             lines += [
-                f"setp {centre}.gain 1",
+                f"setp {centre}.gain0 1",
+                f"setp {centre}.gain1 0",
                 f"setp {centre}.offset {_num(-reference)}",
                 f"net {centre}-out {centre}.out" + "".join(
                     f" => {self.squares[k]}.in0 {self.squares[k]}.in1"
@@ -289,12 +361,29 @@ class _HalPlan:
             ]
             previous = current
         lines += [
-            f"net {self.error_signal} {previous}.out => {self.comp}.in",
-            f"setp {self.comp}.gain -0.001",
+            f"net {self.error_signal} {previous}.out => {self.comp}.in0",
+            f"setp {self.comp}.gain0 -0.001",
+            f"setp {self.comp}.gain1 0",
             f"setp {self.comp}.offset 0",
             f"net {self.comp_signal} {self.comp}.out",
-            "",
         ]
+        if self.to_counts:
+            to_counts = self.to_counts[0]
+            ready, gate, counts = self.eoffset_parts
+            lines += [
+                f"# the compensation in counts of {_num(o.count_mm)} mm for the external offset "
+                f"of axis {o.axis}, 0 until {ready} (machine on and homed: "
+                f"{self.prefix}-eoffset.hal) is TRUE",
+                f"net {self.comp_signal} => {to_counts}.in0",
+                f"setp {to_counts}.gain0 {_num(1.0 / o.count_mm)}",
+                f"setp {to_counts}.gain1 0",
+                f"setp {to_counts}.offset 0",
+                f"net {self.prefix}-counts-f {to_counts}.out => {gate}.in1",
+                f"setp {gate}.in0 0",
+                f"net {self.prefix}-counts-gated {gate}.out => {counts}.in",
+                f"setp {counts}.clamp 1",
+            ]
+        lines.append("")
         return "\n".join(lines)
 
 

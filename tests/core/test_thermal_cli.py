@@ -33,7 +33,8 @@ def test_json_report_export_and_project(record: Path, tmp_path: Path, capsys) ->
     out = tmp_path / "export"
     project = tmp_path / "p.h5"
     code = main(["thermal", str(record), "--error", "Z drift", "--json", "--export", str(out),
-                 "--project", str(project), "--train-fraction", "0.6"])
+                 "--project", str(project), "--train-fraction", "0.6", "--hal-axis", "z",
+                 "--hal-loaded", "lowpass,scale"])
     captured = capsys.readouterr()
     assert code == 0, captured.err
     data = json.loads(captured.out)
@@ -47,7 +48,11 @@ def test_json_report_export_and_project(record: Path, tmp_path: Path, capsys) ->
     assert "compensation applies −error" in channel["sign_convention"]
     assert {Path(p).name for p in entry["exported"]} == {
         "thermal-z-drift.hal", "thermal-z-drift.json", "thermal-z-drift.csv",
-        "thermal-z-drift-check.csv"}
+        "thermal-z-drift-check.csv", "thermal-z-drift-eoffset.hal"}
+    hal = (out / "thermal-z-drift.hal").read_text()
+    assert "\nloadrt sum2 names=" in hal and "\nloadrt lowpass" not in hal
+    assert "add to its 'loadrt lowpass' line the names" in hal or "lag" not in hal
+    assert "axis.z.eoffset-counts" in (out / "thermal-z-drift-eoffset.hal").read_text()
     assert entry["stored_as"] == "/thermal/warmup"
     stored = load_thermal(Project.open(project), "warmup")
     assert stored.models["Z drift"].sensors == tuple(channel["sensors"])
