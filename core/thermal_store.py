@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from .outliers import SeriesFlag
 from .project import Project
 from .thermal import (
     ErrorChannel,
@@ -38,7 +39,7 @@ from .thermal import (
     TemperatureChannel,
     ThermalMeasurement,
 )
-from .thermal_fit import ThermalFitResult
+from .thermal_fit import Baseline, SubsetScore, ThermalFitOptions, ThermalFitResult
 from .thermal_model import ThermalModel
 from .userror import UserError
 
@@ -159,3 +160,67 @@ def load_thermal(project: Project, name: str) -> StoredThermal:
         models[channel] = ThermalModel.from_json(json.loads(entry["model_json"]))
         results[channel] = json.loads(entry["result_json"])
     return StoredThermal(measurement, models, results)
+
+
+def load_thermal_result(project: Project, name: str, channel: str | None = None
+                        ) -> ThermalFitResult:
+    """The fit of one channel (None: the first) of a stored record, as :func:`fit_thermal`
+    returned it (for the workbench view and the report), without fitting again."""
+    stored = load_thermal(project, name)
+    if not stored.results:
+        raise UserError(f"thermal record {name!r} has no fitted model")
+    key = channel if channel is not None else next(iter(stored.results))
+    if key not in stored.results:
+        raise UserError(f"thermal record {name!r} has no model of {key!r}; it has "
+                        f"{', '.join(stored.results)}")
+    summary = stored.results[key]
+    unit = str(summary["unit"])
+    tree = project.result(KIND, name)
+    predicted = next(np.asarray(m["predicted"], dtype=float) for m in tree["models"]
+                     if str(m["channel"]) == key)
+    saved = summary.get("options", {})
+    options = ThermalFitOptions(
+        train_fraction=float(summary["train_fraction"]),
+        max_sensors=int(saved.get("max_sensors", 6)),
+        blocks=int(saved.get("blocks", 10)),
+        initial_fraction=float(saved.get("initial_fraction", 0.5)),
+        dynamic=bool(saved.get("dynamic", True)),
+        quadratic=bool(saved.get("quadratic", True)),
+        min_improvement=float(saved.get("min_improvement", 0.02)),
+    )
+
+    def number(value: Any) -> float | None:
+        return None if value is None else float(value)
+
+    return ThermalFitResult(
+        measurement=str(summary["measurement"]),
+        channel=key,
+        unit=unit,
+        model=stored.models[key],
+        options=options,
+        train_samples=int(summary["train_samples"]),
+        test_samples=int(summary["test_samples"]),
+        split_time_s=float(summary["split_time_s"]),
+        cv_description=str(summary["cross_validation"]),
+        cv_rms=float(summary[f"cv_rms_{unit}"]),
+        train_rms=float(summary[f"train_rms_{unit}"]),
+        test_rms=number(summary.get(f"test_rms_{unit}")),
+        test_max_abs=number(summary.get(f"test_max_abs_{unit}")),
+        uncompensated_test_rms=number(summary.get(f"uncompensated_test_rms_{unit}")),
+        static_cv_rms=float(summary[f"static_cv_rms_{unit}"]),
+        subsets=tuple(SubsetScore(tuple(s["sensors"]), float(s[f"cv_rms_{unit}"]))
+                      for s in summary["subsets"]),
+        decisions=tuple(summary["decisions"]),
+        baselines=tuple(Baseline(str(b["name"]), tuple(b["sensors"]),
+                                 float(b[f"train_rms_{unit}"]), number(b[f"cv_rms_{unit}"]),
+                                 number(b[f"test_rms_{unit}"])) for b in summary["baselines"]),
+        time_s=stored.measurement.time_s,
+        measured=stored.measurement.error(key).values,
+        predicted=predicted,
+        term_spread=tuple(float(w[f"spread_{unit}"]) for w in summary.get("weights", [])),
+        outliers=tuple(SeriesFlag(str(f["channel"]), int(f["sample"]), float(f["time_s"]),
+                                  float(f["value"]), str(f["reason"]), float(f["statistic"]))
+                       for f in summary.get("outliers", [])),
+        warnings=tuple(summary.get("warnings", [])),
+        elapsed_s=float(summary.get("elapsed_s", 0.0)),
+    )

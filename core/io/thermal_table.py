@@ -138,6 +138,14 @@ def read_thermal_table(
     error_cols = [_column(source, header, names, e.column, "error", where) for e in fmt.errors]
     time_col = _time_column(source, header, names, fmt, where)
     used = set(error_cols) | ({time_col} if time_col is not None else set())
+    notes: list[str] = []
+    if time_col is None and fmt.temperatures is None:
+        # a time column beside a declared interval is not a temperature
+        for index, (plain, _) in enumerate(names):
+            if _plain(plain) in _TIME_NAMES and index not in used:
+                used.add(index)
+                notes.append(f"column {_label(header, index)} is not used: the declared sample "
+                             f"interval of {fmt.sample_interval_s:g} s gives the time")
     if fmt.temperatures is None:
         width = len(header) if header else _width(source, fmt, delimiter, where)
         temp_cols = [k for k in range(width) if k not in used]
@@ -196,7 +204,7 @@ def read_thermal_table(
         temperatures.append(TemperatureChannel(label, to_celsius(rows[:, offset + j],
                                                                  temp_keys[j])))
     usable, excluded = split_stuck_sensors(temperatures, fmt.stuck_span_c)
-    warnings = tuple(e.reason for e in excluded) + tuple(time_gaps(time_s))
+    warnings = tuple(notes) + tuple(e.reason for e in excluded) + tuple(time_gaps(time_s))
     source_path = Path(source.path)
     try:
         return ThermalMeasurement(

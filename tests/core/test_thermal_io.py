@@ -169,3 +169,12 @@ def test_measurement_checks_from_arrays() -> None:
     assert any("a gap of 88 s between samples 3 and 4" in w for w in m.warnings)
     with pytest.raises(UserError, match="no error channel 'x'"):
         m.error("x")
+
+
+def test_a_time_column_beside_a_declared_interval_is_not_a_temperature(tmp_path: Path) -> None:
+    text = "\n".join(["time [s],dz [um],T1 [C]", "0,0,20", "7,1,21", "30,2,22"]) + "\n"
+    m = read_thermal_table(write(tmp_path, text), ThermalTableFormat(
+        (ErrorColumn("dz"),), sample_interval_s=10.0))
+    assert m.sensor_names == ("T1",)
+    np.testing.assert_allclose(m.time_s, [0, 10, 20])
+    assert any("'time [s]' is not used" in w for w in m.warnings)

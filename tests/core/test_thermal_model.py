@@ -27,7 +27,7 @@ from volucal.core.thermal_model import (
     newey_west_covariance,
 )
 from volucal.core.thermal_sim import SimulatedThermalTest, simulate_thermal_test
-from volucal.core.thermal_store import load_thermal, store_thermal
+from volucal.core.thermal_store import load_thermal, load_thermal_result, store_thermal
 from volucal.core.userror import UserError
 
 # ---- the lag ---------------------------------------------------------------------------------
@@ -226,6 +226,13 @@ def test_project_round_trip(tmp_path) -> None:
     assert stored.results["Z drift"]["test_rms_um"] == pytest.approx(result.test_rms)
     with pytest.raises(UserError, match="no thermal record 'x'"):
         load_thermal(Project.open(tmp_path / "p.h5"), "x")
+    again = load_thermal_result(Project.open(tmp_path / "p.h5"), "warmup")
+    assert again.model.terms == result.model.terms and again.decisions == result.decisions
+    assert again.test_rms == pytest.approx(result.test_rms)
+    assert again.baselines == result.baselines and again.subsets == result.subsets
+    assert again.term_spread == pytest.approx(result.term_spread)
+    np.testing.assert_array_equal(again.predicted, result.predicted)
+    assert again.outliers == result.outliers
 
 
 def test_measurement_from_arrays_excludes_stuck() -> None:
