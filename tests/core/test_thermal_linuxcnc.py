@@ -21,6 +21,7 @@ CI is set.
 from __future__ import annotations
 
 import csv
+import fcntl
 import json
 import os
 import pwd
@@ -41,6 +42,21 @@ pytestmark = pytest.mark.linuxcnc
 
 USER = "volucal-lcnc"
 PERIOD_S = 0.001
+
+
+#: One HAL session runs per machine: LinuxCNC tests that take this lock never overlap (another
+#: process that starts LinuxCNC without it can still collide: "duplicate thread name").
+LOCK = Path(tempfile.gettempdir()) / "volucal-linuxcnc.lock"
+
+
+@pytest.fixture
+def one_session():
+    with open(LOCK, "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 @pytest.fixture(scope="module")
@@ -109,7 +125,7 @@ def _values(folder: Path) -> dict[str, float]:
     return values
 
 
-def test_hal_snippet_computes_the_model(halrun: list[str]) -> None:
+def test_hal_snippet_computes_the_model(halrun: list[str], one_session: None) -> None:
     model = _model()
     folder = Path(tempfile.mkdtemp(prefix="volucal-thermal-hal-"))
     folder.chmod(0o755)
@@ -278,7 +294,8 @@ def _eoffset_ini(halfiles: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def test_compensation_moves_the_axis_through_external_offsets(halrun: list[str]) -> None:
+def test_compensation_moves_the_axis_through_external_offsets(halrun: list[str],
+                                                              one_session: None) -> None:
     """A whole simulated LinuxCNC machine: the exported snippet and its external-offset wiring
     are HAL files of the INI; with the temperatures set, the Z axis carries the compensation."""
     if shutil.which("linuxcnc") is None:
