@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from volucal.core.io.iso_table import read_iso_table
 from volucal.core.measurement import LineData
-from volucal.core.outliers import drop, screen
+from volucal.core.outliers import drop, screen, screen_series
 
 
 def clean_line(seed: int = 4, runs: int = 10, count: int = 21, sigma: float = 0.5) -> LineData:
@@ -79,3 +79,47 @@ def test_real_outlier_in_the_first_cycle(realdata):
     median_others = np.median(microns.deviations[[2, 4, 6, 8], 0])
     assert first.value - median_others == pytest.approx(113.9, abs=1.0)
     assert all(f.run == 1 for f in flags)
+
+
+def drifting_line(seed: int = 2, runs: int = 24, count: int = 5) -> LineData:
+    """A thermal test in the manner of ISO 230-3: the same five targets read again and again
+    (forward runs only) while the axis grows by up to 15 µm with a warm-up time constant."""
+    rng = np.random.default_rng(seed)
+    targets = np.linspace(0, 400, count)
+    minutes = np.arange(runs)[:, None] * 10.0 + np.arange(count)[None, :] * 0.5
+    growth = 15.0 * (1 - np.exp(-minutes / 60.0)) * (targets / 400.0)
+    deviations = growth + rng.normal(0, 0.3, (runs, count))
+    return LineData(targets, deviations, np.ones(runs, dtype=np.int64), minutes * 60.0)
+
+
+def test_a_warm_up_over_many_runs_is_a_trend_not_outliers():
+    """With the median of the other runs as the reference, the first runs of the warm-up sit
+    far below the rest and are flagged; against the smooth trend over time they are not."""
+    for seed in range(10):
+        assert screen(drifting_line(seed)) == []
+    data = drifting_line()
+    bad = data.deviations.copy()
+    bad[9, 3] += 3.0  # 10 σ off the trend, well inside the range the warm-up spans
+    flags = screen(LineData(data.targets_mm, bad, data.run_direction, data.times_s), line="z")
+    assert [(f.run, f.target) for f in flags] == [(10, 4)]
+    assert flags[0].statistic > 6
+
+
+def test_two_neighbouring_bad_readings_do_not_hide_each_other():
+    data = drifting_line(runs=40)
+    bad = data.deviations.copy()
+    bad[20, 2] += 4.0
+    bad[21, 2] += 4.0
+    flags = screen(LineData(data.targets_mm, bad, data.run_direction, data.times_s))
+    assert {(f.run, f.target) for f in flags} == {(21, 3), (22, 3)}
+
+
+def test_series_screen_flags_a_spike_in_a_transient():
+    t = np.arange(0, 600.0) * 60
+    rng = np.random.default_rng(1)
+    y = 20 * (1 - np.exp(-t / 7200)) + rng.normal(0, 0.1, t.size)
+    assert screen_series(t, y) == []
+    y[123] += 1.5
+    flags = screen_series(t, y, name="Z", unit="um")
+    assert [f.sample for f in flags] == [124]
+    assert "Z at sample 124" in flags[0].reason and "smooth trend" in flags[0].reason
