@@ -381,24 +381,20 @@ def identify_grid(
 
     residual = rigid_residual
     surface = None
-    at_reference = np.zeros(2)
     if request.surface:
         surface = np.zeros((2,) + lattice.shape)
         for k in directions:
             rows = readings.direction == k
             surface[k] = solver.as_grid(solver.fit(model.node[rows], rigid_residual[rows],
                                                    surface_weight[k]))
-        ref_i, ref_j = lattice.index(np.array([reference]))
-        at_reference = surface[:, ref_j[0], ref_i[0]].copy()
-        surface -= at_reference[:, None, None]
         on_node = np.where(readings.direction == 0, surface[0][readings.iy, readings.ix],
                            surface[1][readings.iy, readings.ix])
-        residual = rigid_residual - on_node - at_reference[readings.direction]
+        residual = rigid_residual - on_node
 
     gauges = {
         grid.name: GridGauge(
-            offset_x_um=float(scalars.get(f"offset_x:{g}", 0.0) + at_reference[0]),
-            offset_y_um=float(scalars.get(f"offset_y:{g}", 0.0) + at_reference[1]),
+            offset_x_um=float(scalars.get(f"offset_x:{g}", 0.0)),
+            offset_y_um=float(scalars.get(f"offset_y:{g}", 0.0)),
             rotation_urad=float(scalars[f"rotation:{g}"]),
         )
         for g, grid in enumerate(grid_list)
@@ -481,7 +477,7 @@ class _CrossValidation:
                ) -> tuple[dict[str, int], dict[str, float], dict[int, float]]:
         request = self.request
         degrees = {t.id: max(request.degrees) for t in terms}
-        smoothing = {t.id: 1.0 for t in terms}
+        smoothing = {t.id: min(request.smoothing) for t in terms}
         weight = {k: min(request.smoothing) for k in self.directions}
         surface = weight if request.surface else None
         for _ in range(request.sweeps):
@@ -525,7 +521,8 @@ class _CrossValidation:
                 for k in self.directions:
                     mine = self.readings.direction == k
                     fit = self.solver.fit(self.node[kept & mine],
-                                          (values - prediction)[kept & mine], surface[k])
+                                          (values - prediction)[kept & mine], surface[k],
+                                          key=(id(folds), f, k, surface[k]))
                     prediction[held & mine] += fit[self.node[held & mine]]
             error[held] = values[held] - prediction[held]
         return error

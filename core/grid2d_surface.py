@@ -10,9 +10,11 @@ bandwidth, and solved by banded Cholesky.
 
 from __future__ import annotations
 
+from collections.abc import Hashable
+
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import solveh_banded
+from scipy.linalg import cho_solve_banded, cholesky_banded
 
 from .grid2d import Lattice
 
@@ -42,6 +44,7 @@ class SurfaceSolver:
         banded[width - 1, 1:] = np.where(along[1:] > 0, -1.0, 0.0)
         banded[0, width:] = -1.0
         self._laplacian = banded
+        self._factors: dict[Hashable, FloatArray] = {}
 
     def node(self, ix: IntArray, iy: IntArray) -> IntArray:
         """Index of each reading's node in the solver's numbering."""
@@ -49,13 +52,24 @@ class SurfaceSolver:
             return np.asarray(ix * self._width + iy, dtype=np.int64)
         return np.asarray(iy * self._width + ix, dtype=np.int64)
 
-    def fit(self, node: IntArray, values: FloatArray, weight: float) -> FloatArray:
-        """Node values (solver numbering) of the surface through ``values`` read at ``node``."""
-        counts = np.bincount(node, minlength=self.size).astype(float)
+    def fit(self, node: IntArray, values: FloatArray, weight: float,
+            key: Hashable | None = None) -> FloatArray:
+        """Node values (solver numbering) of the surface through ``values`` read at ``node``.
+
+        The matrix depends only on which nodes are read and the weight: with a ``key`` naming
+        that pair, its factor is kept and reused (cross-validation refits the same folds many
+        times with other rigid-body terms).
+        """
+        factor = self._factors.get(key) if key is not None else None
+        if factor is None:
+            counts = np.bincount(node, minlength=self.size).astype(float)
+            banded = weight * self._laplacian
+            banded[self._width] += counts + _RIDGE
+            factor = cholesky_banded(banded, check_finite=False)
+            if key is not None:
+                self._factors[key] = factor
         sums = np.bincount(node, weights=values, minlength=self.size)
-        banded = weight * self._laplacian
-        banded[self._width] += counts + _RIDGE
-        return np.asarray(solveh_banded(banded, sums, check_finite=False))
+        return np.asarray(cho_solve_banded((factor, False), sums, check_finite=False))
 
     def as_grid(self, values: FloatArray) -> FloatArray:
         """Node values as a (ny, nx) table indexed [row (Y), column (X)]."""
