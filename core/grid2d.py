@@ -165,8 +165,12 @@ def grid_nodes(values_mm: FloatArray, tolerance_mm: float) -> tuple[FloatArray, 
     if distinct.size == 1:
         return distinct, 0.0, 0
     gaps = np.diff(distinct)
-    gaps = gaps[gaps > tolerance_mm]
-    step = float(np.median(gaps)) if gaps.size else 0.0
+    gaps = np.round(gaps[gaps > tolerance_mm] / tolerance_mm) * tolerance_mm
+    step = 0.0
+    if gaps.size:
+        # the most common spacing (the larger on a tie): one odd value cannot move the step
+        values, counts = np.unique(gaps, return_counts=True)
+        step = float(values[counts == counts.max()].max())
     low, high = float(values_mm.min()), float(values_mm.max())
     count = int(round((high - low) / step)) + 1 if step > 0 else 1
     nodes = low + step * np.arange(count)

@@ -59,7 +59,8 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 #: Smoothing weights tried by cross-validation (per reading, relative to the data term).
-SMOOTHING = tuple(10.0**k for k in range(-3, 6))
+SMOOTHING = tuple(10.0**k for k in range(-3, 1))
+SURFACE_SMOOTHING = tuple(10.0**k for k in range(-3, 4))
 DEGREES = (1, 3)
 
 
@@ -71,7 +72,9 @@ class GridFitRequest:
     reference_mm : (x, y) where every error function is zero; the lattice's first node.
     surface : fit the cross-axis surface (the 2-D map beyond the rigid-body terms).
     folds : K of the K-fold cross-validation.
-    degrees, smoothing : the candidates cross-validation chooses from.
+    degrees, smoothing : the candidates cross-validation chooses from for the error functions
+        (smoothing weights up to 1: stronger smoothing biases a function more than its stated
+        uncertainty says); surface_smoothing: those for the cross-axis surface.
     sweeps : passes over the error functions when choosing their smoothing.
     """
 
@@ -81,6 +84,7 @@ class GridFitRequest:
     folds: int = 5
     degrees: tuple[int, ...] = DEGREES
     smoothing: tuple[float, ...] = SMOOTHING
+    surface_smoothing: tuple[float, ...] = SURFACE_SMOOTHING
     sweeps: int = 2
 
     def __post_init__(self) -> None:
@@ -90,7 +94,7 @@ class GridFitRequest:
             raise UserError(f"cross-validation needs at least 2 folds, got {self.folds}")
         if not self.degrees or any(d not in (1, 3) for d in self.degrees):
             raise UserError("basis degrees must be 1 (node table) or 3 (cubic B-spline)")
-        if not self.smoothing or any(not s > 0 for s in self.smoothing):
+        if not self.smoothing or any(not s > 0 for s in self.smoothing + self.surface_smoothing):
             raise UserError("smoothing weights must be positive")
 
 
@@ -478,7 +482,7 @@ class _CrossValidation:
         request = self.request
         degrees = {t.id: max(request.degrees) for t in terms}
         smoothing = {t.id: min(request.smoothing) for t in terms}
-        weight = {k: min(request.smoothing) for k in self.directions}
+        weight = {k: min(request.surface_smoothing) for k in self.directions}
         surface = weight if request.surface else None
         for _ in range(request.sweeps):
             for term in terms:
@@ -499,8 +503,8 @@ class _CrossValidation:
                     rows = self.readings.direction == k
                     scores = [float(np.mean(self.score(system, smoothing, {**weight, k: w},
                                                        self.point_folds)[rows] ** 2))
-                              for w in request.smoothing]
-                    weight[k] = request.smoothing[int(np.argmin(scores))]
+                              for w in request.surface_smoothing]
+                    weight[k] = request.surface_smoothing[int(np.argmin(scores))]
                 surface = weight
         return degrees, smoothing, weight
 

@@ -214,9 +214,21 @@ def _layout(source: SourceText, fmt: GridFormat) -> _Layout:
     delimiter = _delimiter(fmt, probe)
     header: tuple[str, ...] = ()
     if header_line is not None:
-        header = tuple(h.strip().strip('"').strip("'")
-                       for h in split_fields(source.lines[header_line - 1], delimiter))
+        header = _merge_units(tuple(h.strip().strip('"').strip("'") for h in
+                                    split_fields(source.lines[header_line - 1], delimiter)))
     return _Layout(header, header_line, first, delimiter)
+
+
+def _merge_units(tokens: tuple[str, ...]) -> tuple[str, ...]:
+    """In a whitespace-separated header, ``x [mm]`` splits in two: join a token that is only a
+    bracketed unit to the name before it."""
+    out: list[str] = []
+    for token in tokens:
+        if out and re.fullmatch(r"\[[^\]]*\]|\([^)]*\)", token):
+            out[-1] = f"{out[-1]} {token}"
+        else:
+            out.append(token)
+    return tuple(out)
 
 
 def _plain(name: str) -> str:
