@@ -209,6 +209,16 @@ def common_lattice(grids: list[GridMeasurement], tolerance_mm: float = 1e-3) -> 
                 raise GridLayoutError(
                     grid, None, f"every reading has the same commanded {axis} ({nodes[0]:g} "
                     f"mm): a grid needs at least two {axis} positions; check the column map")
+            distinct = np.unique(np.round(grid.position_mm[:, k] / tolerance_mm))
+            if nodes.size > max(2 * distinct.size, 16) or nodes.size > 4 * grid.count:
+                # a spacing far below the values' spread: measured values, not commanded nodes
+                gaps = np.diff(np.sort(grid.position_mm[:, k]))
+                index = int(np.argsort(grid.position_mm[:, k])[1 + int(np.argmin(
+                    np.where(gaps > tolerance_mm, gaps, np.inf)))])
+                raise GridLayoutError(
+                    grid, index, f"the commanded {axis} values ({distinct.size} distinct, some "
+                    f"{step:.4g} mm apart) do not lie on a regular grid: check the column map "
+                    "(are the commanded and measured columns swapped?)")
             offset = abs(grid.position_mm[worst, k] - (nodes[0] + step * round(
                 (grid.position_mm[worst, k] - nodes[0]) / step)))
             if offset > tolerance_mm:

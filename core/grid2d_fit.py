@@ -32,7 +32,9 @@ independent; neighbouring readings are correlated, so they are a lower bound).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import ctypes
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -315,6 +317,45 @@ def _upper_axis(grids: Sequence[GridMeasurement], request: GridFitRequest) -> st
     return stated.pop()
 
 
+@contextmanager
+def _one_blas_thread() -> Iterator[None]:
+    """Run the enclosed linear algebra on one BLAS thread (this thread only).
+
+    The identification solves thousands of systems of a few hundred unknowns; OpenBLAS gains
+    nothing from threads at that size and, on a busy machine, loses up to 20× to them. OpenBLAS'
+    ``openblas_set_num_threads_local`` sets the count for the calling thread and returns the old
+    one; where the library or the symbol is absent this does nothing.
+    """
+    setters = []
+    for library in _openblas_libraries():
+        function = getattr(library, "openblas_set_num_threads_local", None)
+        if function is not None:
+            function.argtypes = [ctypes.c_int]
+            function.restype = ctypes.c_int
+            setters.append((function, function(1)))
+    try:
+        yield
+    finally:
+        for function, previous in setters:
+            function(previous)
+
+
+def _openblas_libraries() -> list[ctypes.CDLL]:
+    libraries = []
+    try:
+        with open("/proc/self/maps", encoding="ascii", errors="replace") as maps:
+            paths = {line.split()[-1] for line in maps
+                     if "openblas" in line.lower() and ".so" in line.split()[-1]}
+    except OSError:
+        return []
+    for path in sorted(paths):
+        try:
+            libraries.append(ctypes.CDLL(path))
+        except OSError:
+            continue
+    return libraries
+
+
 def identify_grid(
     grids: GridMeasurement | Sequence[GridMeasurement],
     request: GridFitRequest | None = None,
@@ -331,7 +372,12 @@ def identify_grid(
         For grids off a common lattice, with fewer than two nodes along an axis, or that do not
         separate the terms.
     """
-    request = request or GridFitRequest()
+    with _one_blas_thread():
+        return _identify(grids, request or GridFitRequest())
+
+
+def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
+              request: GridFitRequest) -> GridIdentification:
     grid_list = [grids] if isinstance(grids, GridMeasurement) else list(grids)
     names = [g.name for g in grid_list]
     if len(set(names)) != len(names):

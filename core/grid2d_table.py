@@ -44,7 +44,7 @@ TEMPERATURE_UNITS = {"c": 0.0, "degc": 0.0, "°c": 0.0, "k": -273.15}
 #: Values outside these ranges (in volucal's units) mean a wrong column or unit.
 PLAUSIBLE = {
     "air_temp": (0.0, 50.0, "°C"),
-    "material_temp": (-10.0, 80.0, "°C"),
+    "material_temp": (0.0, 60.0, "°C"),
     "pressure": (50.0, 120.0, "kPa"),
     "humidity": (0.0, 100.0, "%RH"),
 }
