@@ -51,7 +51,7 @@ def test_planar_errors_squareness_and_yaw_come_back_in_volucal_conventions(chain
     grid = simulate(model, gauge, noise_um=0.02)
     result = identify_grid(grid, GridFitRequest(surface=False))
     assert set(result.functions) == {"EXX", "EYY", "EYX", "EXY", yaw}
-    for eid, function in result.functions.items():
+    for eid in result.functions:
         q, value, std = result.sampled(eid)
         truth = model.functions[eid](q)
         # within the stated standard uncertainty (5 σ: the smoothing that cross-validation
@@ -105,7 +105,7 @@ def test_the_map_is_the_model_plus_gauges_and_the_surface_takes_what_is_not_rigi
 def test_several_grids_share_the_errors_and_keep_their_own_gauges():
     model = machine_and_model("WYXFZT", squareness_urad=15.0)
     whole = simulate(model, GridGauge())
-    x, y = whole.position_mm[:, 0], whole.position_mm[:, 1]
+    x = whole.position_mm[:, 0]
     zones = []
     for name, mask, gauge in (("left", x <= 160, GridGauge(2.0, -1.0, 30.0)),
                               ("right", x >= 140, GridGauge(-0.5, 0.4, -12.0))):
