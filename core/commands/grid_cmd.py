@@ -1,18 +1,18 @@
 """``volucal grid FILE...``: planar errors and a 2-D correction table from XY grid measurements.
 
-FILE is an Aerotech Accuracy2D data file (recognised by its ``TestType : Accuracy2D`` line; its
-``.set`` file beside it gives the position unit) or any table of commanded positions and
-measured positions or deviations read with ``--columns`` (a Heidenhain KGM grid-encoder export,
+FILE is an Aerotech Accuracy2D data file (recognised by its 'TestType : Accuracy2D' line; its
+'.set' file beside it gives the position unit) or any table of commanded positions and
+measured positions or deviations read with --columns (a Heidenhain KGM grid-encoder export,
 a CSV). Several files are zones of one stitched calibration: they are fitted together, each with
 its own laser zero and mirror rotation.
 
 Prints the grid (nodes, units and where they came from, environment), the set-up's gauge terms,
 the planar errors in ISO 230-1 ids (EXX, EYY positioning; EYX, EXY straightness; ECY or ECX yaw
 of the upper axis; EC0Y squareness) with their standard uncertainties, the cross-axis surface and
-the residuals. ``--export-cal`` writes an Aerotech 2-D calibration file, ``--export-csv`` a
+the residuals. --export-cal writes an Aerotech 2-D calibration file, --export-csv a
 generic CSV grid (sign: correction = −(measured − commanded), stated in both files);
-``--compare-cal`` compares the correction with another .cal at its nodes (the gauge terms both
-leave removed); ``--project`` stores the grids and the identification in a project.
+--compare-cal compares the correction with another .cal at its nodes (the gauge terms both
+leave removed); --project stores the grids and the identification in a project.
 """
 
 from __future__ import annotations
