@@ -173,7 +173,7 @@ def grid_nodes(values_mm: FloatArray, tolerance_mm: float) -> tuple[FloatArray, 
         step = float(values[counts == counts.max()].max())
     low, high = float(values_mm.min()), float(values_mm.max())
     count = int(round((high - low) / step)) + 1 if step > 0 else 1
-    nodes = low + step * np.arange(count)
+    nodes = np.asarray(low + step * np.arange(count), dtype=float)
     nearest = np.clip(np.rint((values_mm - low) / step), 0, count - 1) if step > 0 else 0
     off = np.abs(values_mm - (low + step * nearest))
     return nodes, step, int(np.argmax(off))

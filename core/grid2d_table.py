@@ -412,7 +412,7 @@ def _assemble(
                 f"not plausible (expected {low:g} to {high:g} {symbol}): check the column map "
                 "and the unit", lines[row])
         environment[key] = raw
-    unit_text = {kind: f"{_SYMBOL.get(units[kind], units[kind])} ({notes[kind]})"
+    unit_text: dict[str, str] = {kind: f"{_SYMBOL.get(units[kind], units[kind])} ({notes[kind]})"
                  for kind in ("position", "deviation", "temperature", "pressure")
                  if kind in units}
     unit_text["sign"] = "deviation = measured - commanded" + (

@@ -320,9 +320,9 @@ def render(grids: list[GridMeasurement], identification: GridIdentification,
                    f"{unit:4} ± {np.max(std):.3f}   {basis}, smoothing {choice['smoothing']:g}")
     if identification.squareness_urad is not None:
         value = identification.squareness_urad
-        std = identification.squareness_std_urad or 0.0
+        spread = identification.squareness_std_urad or 0.0
         mean = identification.squareness_mean_urad
-        out.append(f"  EC0Y  squareness of Y to X (about Z){'':9} {value:9.1f} µrad ± {std:.1f} "
+        out.append(f"  EC0Y  squareness of Y to X (about Z){'':9} {value:9.1f} µrad ± {spread:.1f} "
                    f"({value * ARCSEC_PER_URAD:.1f}″) at the reference")
         if mean is not None and any(e in identification.functions for e in ("ECY", "ECX")):
             out.append(f"        from mean slopes over the grid: {mean:.1f} µrad "

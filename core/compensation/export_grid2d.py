@@ -201,11 +201,13 @@ class AerotechCal:
 
     @property
     def row_mm(self) -> FloatArray:
-        return -self.offset_row_mm + self.row_step_mm * np.arange(self.values.shape[1])
+        return np.asarray(-self.offset_row_mm + self.row_step_mm
+                          * np.arange(self.values.shape[1]), dtype=float)
 
     @property
     def column_mm(self) -> FloatArray:
-        return -self.offset_column_mm + self.column_step_mm * np.arange(self.values.shape[2])
+        return np.asarray(-self.offset_column_mm + self.column_step_mm
+                          * np.arange(self.values.shape[2]), dtype=float)
 
 
 _OPTION = re.compile(r"(\w+)\s*=\s*(\S+)")
