@@ -14,7 +14,7 @@ signs (DESIGN.md "Conventions"; µm, µrad, mm; 1e-3 turns µrad·mm into µm)::
   W-Y-X…), ``−ECX(x)·y`` when X is. A grid identifies it; lines cut from the grid cannot.
 - Sx, Sy: the cross-axis surface, what the map holds beyond the rigid-body terms (sag, twist,
   the mirror's or plate's unflatness, local defects): node values on the measured lattice,
-  interpolated bilinearly, fitted to what the rigid-body terms leave, zero at the reference.
+  interpolated bilinearly, fitted to what the rigid-body terms leave (zero mean over the readings).
 - Gauges of grid g (one set-up): the zero of each direction ox_g, oy_g and one rotation θ_g of
   the reference (mirror or plate). Every error function is zero at the reference position (the
   lattice's first node unless given); straightness functions have zero least-squares slope over
