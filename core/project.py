@@ -330,6 +330,7 @@ class Project:
         self.uncertainty: dict[str, float] = {}
         self.lines: dict[str, StoredLine] = {}
         self._results: dict[str, dict[str, Group]] = {kind: {} for kind in RESULT_KINDS}
+        self.grids: dict[str, Group] = {}  # /grids/<name>: volucal.core.grid2d_store
         self.created = _now()
         self.modified = self.created
         self.creator = _creator()
@@ -582,6 +583,8 @@ class Project:
         root.children["measurements"] = measurements
         for kind in RESULT_KINDS:
             root.children[kind] = Group(children=dict(self._results[kind]))  # type: ignore[arg-type]
+        if self.grids:
+            root.children["grids"] = Group(children=dict(self.grids))  # type: ignore[arg-type]
         return root
 
     @classmethod
@@ -611,6 +614,8 @@ class Project:
             for name, tree in results.children.items():
                 assert isinstance(tree, Group)
                 project._results[kind][name] = tree
+        grids = root.children.get("grids")
+        project.grids = dict(grids.children) if isinstance(grids, Group) else {}  # type: ignore[arg-type]
         return project
 
 
