@@ -25,7 +25,9 @@ CATEGORIES = {
 
 @pytest.fixture(scope="module")
 def outcomes() -> dict[int, Outcome]:
-    return {seed: run_scenario(make_scenario(seed, category)) for seed, category in CATEGORIES.items()}
+    return {
+        seed: run_scenario(make_scenario(seed, category)) for seed, category in CATEGORIES.items()
+    }
 
 
 def _of(outcomes: dict[int, Outcome], category: str) -> list[Outcome]:

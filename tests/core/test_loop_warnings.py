@@ -49,4 +49,4 @@ def test_targets_in_step_with_the_screw_lead_are_a_warning(tmp_path, capsys) -> 
     assert code == 0, console
     message = "cannot reveal a cyclic error at the 16 mm screw lead"
     assert any(message in w for w in report["warnings"]), report["warnings"]
-    assert f"warning: the targets" in console and message in console
+    assert "warning: the targets" in console and message in console
