@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .compensation.export_common import DEFAULT_MAX_CORRECTION_UM, ExportOptions
 from .effects import Effect, HigherOrder, refined_model
 from .errors import ErrorModel
 from .identify import Identification, UncertaintyBudget, parameters_report
@@ -25,6 +26,7 @@ from .kinematics import VolumetricModel
 from .machine import Machine
 from .progress import CancelToken, ProgressCallback, check, report
 from .residuals import LoopOptions, LoopResult, close_loop
+from .userror import UserError
 
 FloatArray = NDArray[np.float64]
 
@@ -119,6 +121,8 @@ class CalibrationRequest:
     report_path: Path | None = None
     export_dir: Path | None = None
     export_formats: tuple[str, ...] = ("linuxcnc", "csv")
+    #: plausibility limit of the exported corrections (µm); None exports any size
+    max_correction_um: float | None = DEFAULT_MAX_CORRECTION_UM
     loop: LoopOptions = field(default_factory=LoopOptions)
     sensitivity: bool = True
     sensitivity_n: int = 1400
@@ -201,15 +205,23 @@ def calibrate(
         result["sensitivity"] = sensitivity_result.to_report()
     exports = []
     files: list[str] = []
+    refused: UserError | None = None
     if request.export_dir is not None:
         from .compensation.export import export_model
 
-        for fmt in request.export_formats:
-            check(cancel)
-            report(progress, 0.86, f"exporting {fmt}")
-            out = export_model(source, fmt, Path(request.export_dir) / fmt)
-            exports.append(out)
-            files += [str(p) for p in out.files]
+        options = ExportOptions(max_correction_um=request.max_correction_um)
+        try:
+            for fmt in request.export_formats:
+                check(cancel)
+                report(progress, 0.86, f"exporting {fmt}")
+                out = export_model(source, fmt, Path(request.export_dir) / fmt, options)
+                exports.append(out)
+                files += [str(p) for p in out.files]
+        except UserError as exc:
+            # the identification and the loop are still the user's: saved below, then the
+            # refusal is raised
+            refused = exc
+            result["warnings"] = [*result.get("warnings", []), f"export refused: {exc}"]
     from .compensation.export import compensation_report
 
     report(progress, 0.93, "predicting the compensation")
@@ -220,6 +232,10 @@ def calibrate(
         save_project(request.project_path, imported, loop, result, sensitivity_result)
     if request.report_path is not None:
         write_json_atomic(request.report_path, result)
+    if refused is not None:
+        saved = [str(p) for p in (request.project_path, request.report_path) if p is not None]
+        kept = f" ({', '.join(saved)} written)" if saved else ""
+        raise UserError(f"{refused}{kept}") from refused
     report(progress, 1.0, "done")
     notes = tuple(n for line in imported.lines for n in line.notes)
     return CalibrationResult(result, loop, source, tuple(exports), notes)

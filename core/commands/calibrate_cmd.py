@@ -17,6 +17,7 @@ from ..calibrate import (
     write_json_atomic,
 )
 from ..residuals import LoopOptions
+from .export_cmd import add_correction_limit, correction_limit
 from .progress_bar import ProgressBar
 
 FORMATS = ("linuxcnc", "siemens", "fanuc", "heidenhain", "isg", "csv", "json", "gcode")
@@ -33,6 +34,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
         choices=FORMATS,
         help="compensation format to export (repeat; default: linuxcnc and csv)",
     )
+    add_correction_limit(parser)
     parser.add_argument("--no-sensitivity", action="store_true", help="skip the EFAST ranking")
     parser.add_argument(
         "--margin",
@@ -66,6 +68,7 @@ def run(
         report_path=report,
         export_dir=export,
         export_formats=tuple(args.formats or ("linuxcnc", "csv")),
+        max_correction_um=correction_limit(args),
         loop=LoopOptions(margin=args.margin),
         sensitivity=not args.no_sensitivity,
         drop_outliers=args.drop_outliers,

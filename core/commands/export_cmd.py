@@ -25,6 +25,31 @@ from ..machine import AXES
 from ..userror import UserError
 
 
+def add_correction_limit(parser: argparse.ArgumentParser) -> None:
+    """The plausibility limit of exported corrections and its explicit override (shared by
+    ``export``, ``calibrate`` and ``demo``)."""
+    large = parser.add_mutually_exclusive_group()
+    large.add_argument(
+        "--max-correction-um",
+        type=float,
+        default=DEFAULT_MAX_CORRECTION_UM,
+        metavar="UM",
+        help="refuse to export a correction larger than this, um (default %(default)g): a "
+        "larger one points to a wrong identification",
+    )
+    large.add_argument(
+        "--allow-large-corrections",
+        action="store_true",
+        help="export corrections of any size (the machine really needs more than "
+        "--max-correction-um)",
+    )
+
+
+def correction_limit(args: argparse.Namespace) -> float | None:
+    """The limit the options ask for (None: no limit)."""
+    return None if args.allow_large_corrections else args.max_correction_um
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "export",
@@ -70,21 +95,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "configured MD38000, a larger ISG list); never beyond a fixed limit (LinuxCNC and "
         "Heidenhain 256, Fanuc point numbers 0..1023)",
     )
-    large = parser.add_mutually_exclusive_group()
-    large.add_argument(
-        "--max-correction-um",
-        type=float,
-        default=DEFAULT_MAX_CORRECTION_UM,
-        metavar="UM",
-        help="refuse to export a correction larger than this, um (default %(default)g): a "
-        "larger one points to a wrong identification",
-    )
-    large.add_argument(
-        "--allow-large-corrections",
-        action="store_true",
-        help="export corrections of any size (the machine really needs more than "
-        "--max-correction-um)",
-    )
+    add_correction_limit(parser)
     parser.add_argument(
         "--no-cross", action="store_true", help="leave out cross-axis tables (Siemens, Heidenhain)"
     )
@@ -143,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
             work_offsets_mm=_work_offsets(args.work_offset),
             unknown="pass" if args.pass_unknown else "refuse",
         ),
-        max_correction_um=None if args.allow_large_corrections else args.max_correction_um,
+        max_correction_um=correction_limit(args),
     )
     source = load_source(args.project, args.identification)
     result = export_model(source, args.format, args.out, options)
