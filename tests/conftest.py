@@ -1,6 +1,8 @@
 """Shared test settings: Qt runs offscreen, and the shared real data folder is optional."""
 
+import fcntl
 import os
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -19,3 +21,18 @@ def realdata() -> Path:
     if not path.is_dir():
         pytest.skip("../shared/realdata is not present on this machine")
     return path
+
+
+#: One HAL session runs per machine: LinuxCNC tests that take this lock never overlap, even across
+#: test runs started at the same time (otherwise: "duplicate thread name servo-thread").
+LINUXCNC_LOCK = Path(tempfile.gettempdir()) / "volucal-linuxcnc.lock"
+
+
+@pytest.fixture
+def one_session():
+    with open(LINUXCNC_LOCK, "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)

@@ -213,7 +213,7 @@ def _expected_um(table, position_mm: float, direction: int) -> float:
     return float(np.interp(position_mm, table.position_mm, column))
 
 
-def test_linuxcnc_applies_exported_comp_files(linuxcnc_available: None) -> None:
+def test_linuxcnc_applies_exported_comp_files(linuxcnc_available: None, one_session) -> None:
     source = _source()
     options = ExportOptions(spacing_mm=25.0)
     run_dir = Path(tempfile.mkdtemp(prefix="volucal-lcnc-"))

@@ -21,7 +21,6 @@ CI is set.
 from __future__ import annotations
 
 import csv
-import fcntl
 import json
 import os
 import pwd
@@ -42,21 +41,6 @@ pytestmark = pytest.mark.linuxcnc
 
 USER = "volucal-lcnc"
 PERIOD_S = 0.001
-
-
-#: One HAL session runs per machine: LinuxCNC tests that take this lock never overlap (another
-#: process that starts LinuxCNC without it can still collide: "duplicate thread name").
-LOCK = Path(tempfile.gettempdir()) / "volucal-linuxcnc.lock"
-
-
-@pytest.fixture
-def one_session():
-    with open(LOCK, "a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 @pytest.fixture(scope="module")
