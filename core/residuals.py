@@ -66,7 +66,7 @@ from .identify import (
     identify,
     residual_rms,
 )
-from .machine import AXES, AXIS_INDEX
+from .machine import AXES, AXIS_INDEX, Machine
 from .measurement import Measurement
 from .progress import CancelToken, ProgressCallback, check, report
 from .readings import Readings, flatten
@@ -1015,12 +1015,10 @@ class _Trial:
     ok: bool
     reason: str
     parameters: dict[str, object]
-    #: cross-validated RMS counting only the changes on the lines the candidate acts on
-    attributed: float = float("nan")
 
     @property
     def score(self) -> float:
-        return self.attributed if np.isfinite(self.attributed) else _metric(self.cv)
+        return _metric(self.cv)
 
 
 class _Fitter:
@@ -1071,16 +1069,16 @@ def _judge(
     parameters = effect.parameters(values, covariance)
     contribution = effect.design(refit.readings, refit.model) @ values
     energy = _Tester(current).line_energy(contribution)
-    touched = energy >= max(TOUCHED_SHARE * float(energy.sum()), TOUCHED_SIGMA2)
-    before, after = _metric(cv), _attributed_metric(cv, cv_new, refit.readings, touched)
+    before, after = _metric(cv), _metric(cv_new)
     improvement = 1.0 - after / before if before > 0 else 0.0
+    own = _own_share(cv, cv_new, refit.readings, energy >= TOUCHED_SIGMA2)
     reason = (
-        f"cross-validated RMS {before:.4g} → {_metric(cv_new):.4g}; on the lines it acts on "
-        f"{100 * improvement:.1f} % better"
+        f"cross-validated RMS {before:.4g} → {after:.4g} ({100 * improvement:.1f} % better, "
+        f"{100 * own:.0f} % of it on the lines it acts on)"
     )
 
     def refused(why: str) -> _Trial:
-        return _Trial(finding, refit, cv_new, False, f"{reason}; {why}", parameters, after)
+        return _Trial(finding, refit, cv_new, False, f"{reason}; {why}", parameters)
 
     why = effect.implausible(values, covariance, options.plausibility)
     if why is not None:
@@ -1090,6 +1088,11 @@ def _judge(
         return refused(lonely)
     if improvement < options.margin:
         return refused(f"below the {100 * options.margin:.0f} % margin: refused")
+    if own < OWN_SHARE:
+        return refused(
+            "most of the gain is on lines it does not act on, through what the refit moved in "
+            "the 21 errors: it does not explain the structure it takes; refused"
+        )
     fit_gain = _fit_metric(current) ** 2 - _fit_metric(refit) ** 2
     held_out_gain = before**2 - after**2
     confirmed = held_out_gain / fit_gain if fit_gain > 0 else 1.0
@@ -1102,41 +1105,43 @@ def _judge(
     unrepeatable = _unrepeatable(_sizes(refit, contribution), options)
     if unrepeatable is not None:
         return refused(unrepeatable)
-    return _Trial(finding, refit, cv_new, True, reason, parameters, after)
+    return _Trial(finding, refit, cv_new, True, reason, parameters)
 
 
-#: A line counts as one an effect acts on when it carries at least this share of the effect's
-#: energy beyond what the 21 errors absorb, and at least this many σ² of it.
-TOUCHED_SHARE = 0.02
-TOUCHED_SIGMA2 = 4.0
+#: A line counts as one an effect acts on when what the 21 errors cannot absorb of the effect
+#: there reaches this many σ² (it moves the line's readings by 1 σ in all).
+TOUCHED_SIGMA2 = 1.0
+#: The share of its held-out gain a candidate must bring on the lines it acts on.
+OWN_SHARE = 0.5
 #: A line shows an effect when what the 21 errors cannot absorb of it there reaches 4 σ.
 SHOWN_SIGMA2 = 16.0
 #: Machine effects that one line alone cannot tell from an artefact of that line's set-up.
 NEEDS_TWO_LINES = ("local", "higher_order", "cross_axis")
+#: Effects of one shape whose size must agree between the lines that show it (final audit).
+ONE_SHAPE = ("reversal", "cyclic", "thermal_drift", "local")
 
 
-def _attributed_metric(
+def _own_share(
     cv: CrossValidation, cv_new: CrossValidation, readings: Readings, touched: NDArray[np.bool_]
 ) -> float:
-    """The cross-validated RMS after a candidate, counting only what changed on the lines it
-    acts on and what got worse elsewhere.
+    """The share of a candidate's held-out gain (drop of the cross-validated sum of squares) that
+    falls on the lines it acts on.
 
-    A refit moves the 21 errors a little everywhere; on a plan with structure nothing explains,
-    such a move can change the held-out error of a line the candidate never touches by more
-    than the candidate changes its own lines. That change is not the candidate's merit.
+    A refit moves the 21 errors everywhere. For a real effect that removes a bias the other
+    lines gain too; but on a plan with structure nothing explains, the move alone can change the
+    held-out error of lines the candidate never touches by more than it changes its own. An
+    effect must earn most of its merit where it acts.
     """
     angular = bool(np.isnan(cv.rms_um))
-    total = 0.0
-    count = 0
+    own = total = 0.0
     for index, line in enumerate(readings.lines):
         if (line.spec.quantity == "angular") != angular:
             continue
         n = int(np.count_nonzero(readings.line == index))
-        old = cv.per_line_rms[line.name] ** 2 * n
-        new = cv_new.per_line_rms[line.name] ** 2 * n
-        total += new if touched[index] else max(new, old)
-        count += n
-    return float(np.sqrt(total / count)) if count else float("nan")
+        gain = (cv.per_line_rms[line.name] ** 2 - cv_new.per_line_rms[line.name] ** 2) * n
+        total += gain
+        own += gain if touched[index] else 0.0
+    return own / total if total > 0 else 0.0
 
 
 def _uncorroborated(effect: Effect, energy: FloatArray, readings: Readings) -> str | None:
@@ -1329,7 +1334,9 @@ def close_loop(
             proposals = [f for f in proposals if f not in batch]
             trials = []
             for finding in batch:
-                refit, cv_new = fit(_with(kept, finding.effect), current.model)
+                refit, cv_new = fit(
+                    _with(kept, finding.effect, current.model.machine), current.model
+                )
                 trials.append(_judge(finding, current, cv, refit, cv_new, options))
             tried += len(batch)
             chosen = _simplest_best([t for t in trials if t.ok], options.tie)
@@ -1445,14 +1452,17 @@ def _audit(
     steps: list[Step],
     number: int,
 ) -> tuple[Identification, CrossValidation, list[Effect]]:
-    """With every kept effect in the model, each must have one size on every line that shows it
-    (:func:`_sizes`); the one that varies most beyond that is taken out and the rest refitted,
-    until all agree. Done at the end because while another effect was still missing, the lines
-    it spoils could not agree."""
+    """With every kept effect in the model, each effect of one shape must have one size on every
+    line that shows it (:func:`_sizes`); the one that varies most beyond that is taken out and
+    the rest refitted, until all agree. Done at the end because while another effect was still
+    missing, the lines it spoils could not agree. A surface or a finer function is a basis, not
+    a shape: how well each line's slice of it fits is the cross-validation's question."""
     while kept:
         failures = []
         for index, effect in enumerate(current.effects):
             assert isinstance(effect, Effect)
+            if effect.kind not in ONE_SHAPE:
+                continue
             values = current.effect_parameters[index]
             sizes = _sizes(current, effect.design(current.readings, current.model) @ values)
             why = _unequal(sizes, options)
@@ -1510,15 +1520,24 @@ def _step(
     )
 
 
-def _with(kept: list[Effect], effect: Effect) -> list[Effect]:
-    """Kept effects plus a new one; a position-dependent reversal replaces the constant one, and
-    a cross-axis function replaces the one kept for the same direction."""
+def _with(kept: list[Effect], effect: Effect, machine: Machine) -> list[Effect]:
+    """Kept effects plus a new one. The new one replaces a kept effect that describes the same
+    structure: a position-dependent reversal the constant one, a cross-axis surface of another
+    order or family the one kept for the same direction and axes, and a cycle the one kept on the
+    same axis whose frequency is within the resolution of the stroke (1/stroke): two such cycles
+    cannot be told apart, so the new period is a refinement of the old."""
 
     def replaced(e: Effect) -> bool:
         if isinstance(effect, Reversal) and isinstance(e, Reversal):
             return e.axis == effect.axis
         if isinstance(effect, CrossAxis) and isinstance(e, CrossAxis):
-            return e.direction == effect.direction
+            return e.direction == effect.direction and {e.along, e.across} == {
+                effect.along,
+                effect.across,
+            }
+        if isinstance(effect, Cyclic) and isinstance(e, Cyclic) and e.axis == effect.axis:
+            low, high = machine.stroke(effect.axis)
+            return abs(1.0 / e.period_mm - 1.0 / effect.period_mm) < 1.0 / (high - low)
         return False
 
     return [e for e in kept if not replaced(e)] + [effect]
