@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from .io.units import ANGLE_UNITS, DEVIATION_FACTOR
 from .machine import Machine
 from .userror import UserError
 
@@ -36,6 +37,10 @@ class LineSpec:
     ``reflector_mm`` is the optics position relative to the spindle gauge point; it replaces the
     machine's tool offset for this line. ``sensitive`` is the deviation direction of a
     straightness line or the rotation axis of an angular line.
+
+    ``deviation_unit`` is the unit of a file that does not state its own; it counts only when
+    ``deviation_unit_stated`` (a plan that omits it leaves the unit to the file, and a file
+    without one is then refused at import: volucal assumes no unit).
     """
 
     name: str
@@ -50,6 +55,7 @@ class LineSpec:
     env_corrected: bool = True
     #: How to read the file (format, column map, units, capture binning; docs/formats.md).
     reader: Mapping[str, object] = field(default_factory=dict, hash=False)
+    deviation_unit_stated: bool = True
 
     def __post_init__(self) -> None:
         where = f"line {self.name!r}"
@@ -77,9 +83,10 @@ class LineSpec:
                 )
             object.__setattr__(self, "sensitive", sensitive)
         expected = "urad" if self.quantity == "angular" else "um"
-        if self.deviation_unit not in ("um", "urad", "nm", "mm", "arcsec", "mrad"):
-            raise PlanError(f"{where}: deviation_unit {self.deviation_unit!r} is not supported")
-        if (self.deviation_unit in ("urad", "arcsec", "mrad")) != (expected == "urad"):
+        if self.deviation_unit not in DEVIATION_FACTOR:
+            raise PlanError(f"{where}: deviation_unit {self.deviation_unit!r} is not supported; "
+                            f"use one of {', '.join(DEVIATION_FACTOR)}")
+        if (self.deviation_unit in ANGLE_UNITS) != (expected == "urad"):
             raise PlanError(
                 f"{where}: deviation_unit {self.deviation_unit!r} does not fit a "
                 f"{self.quantity} line"

@@ -14,8 +14,9 @@ SHARED = REPO.parent / "shared"
 
 @pytest.fixture
 def realdata() -> Path:
-    """../shared/realdata when present (never copied into the repository)."""
-    path = SHARED / "realdata"
-    if not path.is_dir():
-        pytest.skip("../shared/realdata is not present on this machine")
-    return path
+    """../shared/realdata (or /work/shared/realdata, for a git worktree) when present; never
+    copied into the repository."""
+    for path in (SHARED / "realdata", Path("/work/shared/realdata")):
+        if path.is_dir():
+            return path
+    pytest.skip("../shared/realdata is not present on this machine")

@@ -108,7 +108,7 @@ def test_binning_a_time_series():
 def binary_file(tmp_path, count_text="3", payload=None, tail=b"\nEOF::\n") -> Path:
     values = np.arange(6, dtype="<f8") if payload is None else payload
     head = f"HEADER::\nSample rate: 10\nSample count: {count_text}\n" \
-           "Channels: position_mm deviation\nData:\n"
+           "Channels: position_mm deviation\nUnits: um\nData:\n"
     path = tmp_path / "bad.rtx"
     path.write_bytes(head.encode() + values.tobytes() + tail)
     return path
@@ -117,10 +117,10 @@ def binary_file(tmp_path, count_text="3", payload=None, tail=b"\nEOF::\n") -> Pa
 @pytest.mark.parametrize(
     "kwargs, match, line",
     [
-        ({"count_text": "4"}, "cut short or damaged", 5),
-        ({"tail": b""}, "no EOF::", 5),
-        ({"count_text": "x"}, "Sample count: expected a number", 3),
-        ({"payload": np.array([0, 1, np.inf, 3, 4, 5], dtype="<f8")}, "sample 2", 5),
+        ({"count_text": "4"}, "cut short or damaged", 6),
+        ({"tail": b""}, "no EOF::", 6),
+        ({"count_text": "x"}, "Sample count: expected a whole number", 3),
+        ({"payload": np.array([0, 1, np.inf, 3, 4, 5], dtype="<f8")}, "sample 2", 6),
     ],
 )
 def test_bad_binary(tmp_path, kwargs, match, line):
@@ -142,7 +142,7 @@ def test_bad_csv_line_is_found_in_a_later_chunk(tmp_path):
 
 def test_csv_capture_needs_times(tmp_path):
     path = tmp_path / "c.csv"
-    path.write_text("deviation\n1\n2\n")
+    path.write_text("deviation_um\n1\n2\n")
     with pytest.raises(FormatError, match="time column or a sample rate") as info:
         read_capture(path)
     assert info.value.line == 1

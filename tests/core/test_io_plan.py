@@ -46,7 +46,10 @@ def test_write_plan_round_trip(tmp_path):
     write_plan(tmp_path / "sub" / "written.toml", plan)
     text = (tmp_path / "sub" / "written.toml").read_text()
     assert 'file = "../x_axis_hand.rtl"' in text  # relative to the written plan's folder
-    back = load_plan(tmp_path / "sub" / "written.toml")
+    # outside the plan's folder: read only with the user's explicit permission
+    with pytest.raises(FormatError, match="outside the plan's folder"):
+        load_plan(tmp_path / "sub" / "written.toml")
+    back = load_plan(tmp_path / "sub" / "written.toml", files_root=tmp_path)
     folder = tmp_path / "sub"
     assert back.machine == plan.machine
     assert back.uncertainty == plan.uncertainty

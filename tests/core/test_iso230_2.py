@@ -113,7 +113,7 @@ def test_straightness_matches_the_vendor_report(realdata):
     for this flatness file."""
     path = realdata / "aerotech_flatness_angular" / "643630-1-1-X-test_Flatness.dat"
     fmt = TableFormat(columns=ColumnMap(position="Position", deviation="Flat"),
-                      deviation_unit="mm", data_marker=":START")
+                      deviation_unit="mm", data_marker=":START", environment=False)
     data = read_table(path, fmt).data
     least_squares, end_point = straightness(data.targets_mm, data.deviations[0] * 1e3)
     assert round(least_squares, 3) == 1.444
