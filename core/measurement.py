@@ -121,10 +121,12 @@ def _vec(values: Sequence[float], where: str) -> tuple[float, float, float]:
 
 def _unit(values: Sequence[float], where: str) -> tuple[float, float, float]:
     v = np.asarray(_vec(values, where))
-    norm = float(np.linalg.norm(v))
-    if norm < 1e-9:
+    scale = float(np.max(np.abs(v)))
+    if scale < 1e-9:
         raise PlanError(f"{where}: a zero-length vector has no direction")
-    v = v / norm
+    # scaled first: [1e308, 1e308, 0] has a direction although its norm overflows
+    v = v / scale
+    v = v / float(np.linalg.norm(v))
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
