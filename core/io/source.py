@@ -201,8 +201,8 @@ def check_magnitude(value: float, limit: float, source: SourceText, line: int, w
     """``value`` when ``|value| ≤ limit`` (and finite), else a FormatError: a value no laser
     measurement produces (docs/formats.md, Limits)."""
     if not abs(value) <= limit:
-        shown = f"{value:g}" if math.isfinite(value) else "beyond the range of a number"
-        raise source.error(f"{what} {shown} is beyond ±{limit:g}, which no measurement produces "
+        shown = f"{value:g} is" if math.isfinite(value) else "overflows once converted, far"
+        raise source.error(f"{what} {shown} beyond ±{limit:g}, which no measurement produces "
                            "(docs/formats.md, Limits); the file is damaged or its unit is wrong",
                            line)
     return value

@@ -233,7 +233,8 @@ def write(tmp_path, text: str) -> Path:
          "data seem to start after line 3 \\(':START'\\): give data_marker", 3),
         # values a laser cannot produce, and loose numbers
         ("position,deviation_um\n0,1\n5,1e300\n", TableFormat(), "beyond ±1e\\+06", 3),
-        ("position_m,deviation_um\n0,1\n1e306,1\n", TableFormat(), "position \\(mm\\) beyond", 3),
+        ("position_m,deviation_um\n0,1\n1e306,1\n", TableFormat(),
+         "position \\(mm\\) overflows once converted", 3),
         ("position,deviation_mm\n0,1\n5,1e307\n", TableFormat(), "beyond", 3),
         ("position,deviation_um\n0,1\n1e999,1\n", TableFormat(), "beyond the range", 3),
         ("position,deviation_um\n0,1\n5,1_000\n", TableFormat(), "expected a number", 3),
