@@ -61,8 +61,10 @@ from .source import (
 )
 from .table import TableFormat
 from .table_layout import (
+    Layout,
     find_layout,
     resolve_columns,
+    row_fits,
     split_fields,
 )
 from .units import (
@@ -332,8 +334,7 @@ def _read_text(
         text = chunk.decode("latin-1")
         if not chunk.isascii():
             # numpy takes a non-breaking space as a blank: find the line in strict terms
-            found = _first_bad_line(head, text, first_line, delimiter, usecols,
-                                    layout.field_count, fmt.comment)
+            found = _first_bad_line(head, text, first_line, layout, usecols, fmt.comment)
             if found is not None:
                 raise found
         try:
@@ -343,11 +344,9 @@ def _read_text(
                 values = np.loadtxt(io.StringIO(text), delimiter=delimiter, usecols=usecols,
                                     comments=fmt.comment, ndmin=2, dtype=float)
         except ValueError:
-            raise _bad_line(head, text, first_line, delimiter, usecols, layout.field_count,
-                            fmt.comment) from None
+            raise _bad_line(head, text, first_line, layout, usecols, fmt.comment) from None
         if not np.isfinite(values).all():
-            raise _bad_line(head, text, first_line, delimiter, usecols, layout.field_count,
-                            fmt.comment)
+            raise _bad_line(head, text, first_line, layout, usecols, fmt.comment)
         rows += values.shape[0]
         if rows > MAX_SAMPLES:
             raise head.error(f"more than {size_text(MAX_SAMPLES)} rows (docs/formats.md, "
@@ -415,8 +414,8 @@ def _line_of_row(raw: bytes, first_line: int, row: int, comment: str) -> int:
 
 
 def _first_bad_line(
-    source: SourceText, text: str, first_line: int, delimiter: str | None, usecols: list[int],
-    field_count: int, comment: str,
+    source: SourceText, text: str, first_line: int, layout: Layout, usecols: list[int],
+    comment: str,
 ) -> FormatError | None:
     """The error of the first line of a chunk that does not hold, in strict terms, as many
     fields as the header and numbers in the used columns; None if every line does."""
@@ -424,10 +423,10 @@ def _first_bad_line(
         stripped = line.split(comment)[0].strip(BLANKS)
         if not stripped:
             continue
-        fields_ = split_fields(stripped, delimiter)
+        fields_ = split_fields(stripped, layout.delimiter)
         number = first_line + offset
-        if len(fields_) != field_count:
-            return source.error(f"expected {field_count} fields as in the header, found "
+        if not row_fits(layout, len(fields_), max(usecols) + 1):
+            return source.error(f"expected {layout.field_count} fields as in the header, found "
                                 f"{len(fields_)}", number)
         for index in usecols:
             try:
@@ -438,10 +437,10 @@ def _first_bad_line(
 
 
 def _bad_line(
-    source: SourceText, text: str, first_line: int, delimiter: str | None, usecols: list[int],
-    field_count: int, comment: str,
+    source: SourceText, text: str, first_line: int, layout: Layout, usecols: list[int],
+    comment: str,
 ) -> FormatError:
-    found = _first_bad_line(source, text, first_line, delimiter, usecols, field_count, comment)
+    found = _first_bad_line(source, text, first_line, layout, usecols, comment)
     return found or source.error("a row could not be read as numbers", first_line)
 
 

@@ -75,6 +75,7 @@ from .table_layout import (
     is_comment,
     name_key,
     resolve_columns,
+    row_fits,
     split_fields,
     split_unit,
 )
@@ -322,12 +323,13 @@ def _rows(
     decimal_comma = layout.delimiter == ";"
     deviation_factor = DEVIATION_FACTOR[units["deviation"] or "um"]
     position_factor = POSITION_FACTOR[units["position"] or "mm"]
+    needed = max(columns.values()) + 1
     for number in range(layout.first_data_line, len(source.lines) + 1):
         text = source.lines[number - 1]
         if is_comment(text, fmt.comment):
             continue
         tokens = split_fields(text, layout.delimiter)
-        if len(tokens) != layout.field_count:
+        if not row_fits(layout, len(tokens), needed):
             against = (f"the header (line {layout.header_line})" if layout.header_line
                        else f"the first row (line {layout.first_data_line})")
             raise source.error(

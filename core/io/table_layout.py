@@ -11,7 +11,11 @@ failing loudly with the file and the line rather than guessing:
   blank-separated file a header with more names than the rows have fields is split again on tabs
   and runs of two or more spaces, so that ``Position     Lower Data     Temperature`` names three
   columns; if that does not give the rows' count either, the file is refused.
-- Every data row has as many fields as the header (or as the first row, without a header).
+- Every data row has as many fields as the header (or as the first row, without a header). In a
+  file with a delimiter (comma, semicolon, tab) a row may end early, leaving out empty trailing
+  cells, as vendor exports do ("Out of spec." with nothing in it), as long as the columns read are
+  there; in a blank-separated file, where a name with a space shifts every column, the counts
+  must be equal.
 - Names match case-insensitively, ignoring spaces, ``_`` and ``-`` and a unit written as
   ``[mm]``, ``(mm)`` or a ``_mm`` suffix; the standard columns also answer to the names vendors
   use (``AirTemp``, ``MatTemp``, ``Pressure``, ``Air Hmd`` …). A name given in a column map must
@@ -228,7 +232,8 @@ def find_layout(source: SourceText, *, delimiter: str | None, data_marker: str |
                              if p.strip(BLANKS))
             if len(respaced) == row_count:
                 header = tuple(p.strip(BLANKS) for p in respaced)
-        if len(header) != row_count:
+        short_rows = chosen is not None and len(header) > row_count  # empty trailing cells
+        if len(header) != row_count and not short_rows:
             raise source.error(
                 f"the header (line {header_line}) has {len(header)} name(s) but the data rows "
                 f"have {row_count} field(s) (line {data_line}): quote names that hold spaces "
@@ -239,8 +244,16 @@ def find_layout(source: SourceText, *, delimiter: str | None, data_marker: str |
         empty = [i + 1 for i, name in enumerate(header) if not name]
         if empty:
             raise source.error(f"column {empty[0]} of the header has no name", header_line)
-    return Layout(header, header_line, first_data, chosen, row_count,
+    return Layout(header, header_line, first_data, chosen, len(header) or row_count,
                   _declared_kind(source, header_line or first_data))
+
+
+def row_fits(layout: Layout, fields_in_row: int, needed: int) -> bool:
+    """Whether a row has the header's count of fields (or, with a delimiter, ends early after
+    the ``needed`` columns read)."""
+    if fields_in_row == layout.field_count:
+        return True
+    return layout.delimiter is not None and needed <= fields_in_row < layout.field_count
 
 
 def _next_text(source: SourceText, start: int, comment: str) -> int | None:
@@ -322,10 +335,13 @@ def resolve_columns(
                     f"(e.g. columns = {{ {f.name} = 2 }}, --columns {f.name}=2)",
                     where,
                 )
+            names = shown_names(layout.header)
+            hint = (f"map it with columns = {{ {f.name} = \"…\" }} (--columns {f.name}=…)"
+                    if names.startswith("the header has") else
+                    "if the table starts below other text, give data_marker (--data-marker): "
+                    "the line just before its header")
             raise source.error(
-                f"no {DESCRIPTION[f.name]} column named {ref or f.name!r}; "
-                f"{shown_names(layout.header)}; map it with columns = {{ {f.name} = \"…\" }} "
-                f"(--columns {f.name}=…)",
+                f"no {DESCRIPTION[f.name]} column named {ref or f.name!r}; {names}; {hint}",
                 where,
             )
         if len(found) > 1:

@@ -312,3 +312,23 @@ def test_a_small_table_cannot_claim_a_huge_grid(tmp_path):
                        "beyond the 2,000,000") as info:
         read_table(path)
     assert info.value.line == 3001
+
+
+def test_rows_may_leave_out_empty_trailing_cells_with_a_delimiter(tmp_path, realdata):
+    """The vendor's "Linear Error Plot" export: tab-separated, its last column ("Out of spec.")
+    empty and left out of every row. Its straightness is the flatness file's."""
+    path = realdata / "aerotech_flatness_angular" / "643630-1-1-X-test_CalData.dat"
+    fmt = TableFormat(columns=ColumnMap(position="Target Value", deviation="Error Value",
+                                        run="Run #"),
+                      deviation_unit="um", data_marker="Sorted by\tposition number")
+    data = read_table(path, fmt).data
+    assert data.targets_mm.size == 33 and data.deviations[0, 1] == -3.35552e-01
+    # but not a column that is read, and never in a blank-separated file
+    csv = tmp_path / "short.csv"
+    csv.write_text("position,deviation_um,note\n0,1\n5\n")
+    with pytest.raises(FormatError, match="expected 3 fields") as info:
+        read_table(csv)
+    assert info.value.line == 3
+    csv.write_text("position deviation_um note\n0 1\n5 2\n")
+    with pytest.raises(FormatError, match="has 3 name"):
+        read_table(csv)
