@@ -20,6 +20,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -41,11 +42,18 @@ def peak_mb() -> float:
 
 
 def fuzz_worker(kind: str, cases: int) -> dict[str, object]:
+    work = Path(tempfile.mkdtemp(prefix=f"volucal-bench-fuzz-{kind}-"))
+    try:
+        return _fuzz(kind, cases, work)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _fuzz(kind: str, cases: int, work: Path) -> dict[str, object]:
     import random
 
     from fuzz_corpus import mutate, run_case, seeds
 
-    work = Path(tempfile.mkdtemp(prefix=f"volucal-bench-fuzz-{kind}-"))
     corpus = seeds(work)[kind]
     baseline = peak_mb()
     rng = random.Random(f"volucal-bench-fuzz-{kind}")
@@ -195,6 +203,51 @@ def _plan(folder: Path, data: Path, extra: str) -> list[str]:
     return ["import", str(folder / f"{data.stem}.h5"), str(plan), "--files-root", "/"]
 
 
+def _valid_rtl(folder: Path) -> tuple[Path, list[str]]:
+    """A valid log just under 1 MB: 2,000 targets × 20 runs."""
+    import numpy as np
+    from volucal.core.io.rtl import reading_times, write_rtl
+    from volucal.core.measurement import LineData
+
+    runs, count = 20, 2000
+    direction = np.tile([1, -1], runs // 2)
+    rng = np.random.default_rng(1)
+    data = LineData(np.arange(count) * 0.2, np.round(rng.normal(0, 2, (runs, count)), 4),
+                    direction, reading_times(runs, count, 3600.0, direction), 1.7e9)
+    path = folder / "valid.rtl"
+    write_rtl(path, data)
+    return path, ["iso230-2", str(path)]
+
+
+def _valid_table(folder: Path) -> tuple[Path, list[str]]:
+    """A valid CSV just under 1 MB: 25 runs × 1,600 targets, one row per reading."""
+    rows = []
+    for run in range(25):
+        targets = range(1600) if run % 2 == 0 else range(1599, -1, -1)
+        rows += [f"{run + 1},{'+1' if run % 2 == 0 else '-1'},{t * 0.25:.2f},{(t % 17) * 0.1:.1f}"
+                 for t in targets]
+    path = folder / "valid.csv"
+    path.write_text("run,direction,position_mm,deviation_um\n" + "\n".join(rows) + "\n")
+    return path, ["iso230-2", str(path)]
+
+
+def _valid_capture(folder: Path) -> tuple[Path, list[str]]:
+    """A valid binary capture just under 1 MB: 40,000 samples × 3 channels, binned at 1 mm."""
+    import numpy as np
+    from volucal.core.io.capture import write_capture
+
+    t = np.arange(40_000) / 1000.0
+    position = 50.0 * (1 - np.cos(2 * np.pi * t / 20.0))
+    path = folder / "valid.rtx"
+    write_capture(path, np.sin(position / 7.0), time_s=t, position_mm=position)
+    return path, _plan(folder, path, 'format = "capture"\ncapture_step_mm = 1\n')
+
+
+VALID = {
+    "valid .rtl, 2,000 targets × 20 runs": _valid_rtl,
+    "valid CSV, 25 runs × 1,600 targets": _valid_table,
+    "valid capture, 40,000 samples": _valid_capture,
+}
 ATTACKS = {
     "rtl claiming 100,000 targets × 1,000 runs": _rtl_claiming_a_huge_grid,
     "CSV with one run per row (10,000 rows)": _csv_one_run_per_row,
@@ -221,14 +274,17 @@ def attack_worker(name: str) -> dict[str, object]:
 
     build_parser()  # every command module imported before the baseline and the clock
     folder = Path(tempfile.mkdtemp(prefix="volucal-bench-attack-"))
-    path, command = ATTACKS[name](folder)
-    size = path.stat().st_size if path.is_file() and path.parent == folder else None
-    baseline = peak_mb()
-    err = io.StringIO()
-    start = time.perf_counter()
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-        status = main(command)
-    seconds = time.perf_counter() - start
+    try:
+        path, command = {**ATTACKS, **VALID}[name](folder)
+        size = path.stat().st_size if path.is_file() and path.parent == folder else None
+        baseline = peak_mb()
+        err = io.StringIO()
+        start = time.perf_counter()
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            status = main(command)
+        seconds = time.perf_counter() - start
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
     return {"name": name, "bytes": size, "status": status, "message": err.getvalue().strip(),
             "seconds": seconds, "baseline_mb": baseline, "peak_mb": peak_mb(),
             "secret_echoed": "PATH=" in err.getvalue()}
@@ -295,11 +351,24 @@ def main() -> int:
         refused = report["status"] != 0 and report["message"].count("\n") == 0 and report[
             "message"].startswith("volucal: error: ")
         failures += 0 if refused and not report["secret_echoed"] else 1
+        worst = max(worst, float(report["peak_mb"]))
         print(f"  {name} ({size}): {'refused' if refused else 'NOT REFUSED'} in "
               f"{report['seconds'] * 1e3:.0f} ms, peak {report['peak_mb']:.0f} MB (baseline "
               f"{report['baseline_mb']:.0f} MB)")
         print(f"      {report['message'][:400]}")
-    print(f"\n{'all outcomes as required' if failures == 0 else f'{failures} failure(s)'}")
+    print("\nvalid files under 1 MB (each in a fresh process):")
+    for name in VALID:
+        report = child(["--attack", name], timeout=600)
+        if "error" in report or report["status"] != 0:
+            print(f"  {name}: FAILED {report.get('error') or report['message']}")
+            failures += 1
+            continue
+        worst = max(worst, float(report["peak_mb"]))
+        print(f"  {name} ({report['bytes']:,} B): read in {report['seconds'] * 1e3:.0f} ms, peak "
+              f"{report['peak_mb']:.0f} MB (baseline {report['baseline_mb']:.0f} MB)")
+    print(f"\npeak resident memory of any import of a file under 1 MB: {worst:.0f} MB "
+          "(target < 500 MB)")
+    print(f"{'all outcomes as required' if failures == 0 else f'{failures} failure(s)'}")
     return 0 if failures == 0 else 1
 
 

@@ -649,6 +649,13 @@ def import_line(spec: LineSpec, *, drop_outliers: bool = False) -> LineImport:
     notes: list[str] = []
     if unit not in ("um", "urad"):
         corrections.append(f"deviations converted from {unit} to {spec.unit}")
+    # a table's environment is converted as it is read; say so
+    pressure_unit = raw.metadata.get("pressure_unit_in_file")
+    if pressure_unit not in (None, "kPa"):
+        corrections.append(f"air pressure converted from {pressure_unit} to kPa")
+    temperature_unit = raw.metadata.get("temperature_unit_in_file")
+    if temperature_unit not in (None, "°C"):
+        corrections.append(f"temperatures converted from {temperature_unit} to °C")
     if not spec.env_corrected:
         if spec.quantity == "linear":
             assumed = spec.reader.get("assumed_air_index")

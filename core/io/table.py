@@ -476,6 +476,9 @@ def _assemble(
     metadata = {"time_source": time_source}
     if "pressure" in columns:
         metadata["pressure_unit_in_file"] = describe(units.get("pressure") or "kpa")
+    for key in ("air_temp", "material_temp"):
+        if key in columns:
+            metadata["temperature_unit_in_file"] = describe(units.get(key) or "c")
     return LineData(
         targets_mm=targets,
         deviations=grid(rows.values["deviation"]),
