@@ -55,7 +55,9 @@ class LineSpec:
     env_corrected: bool = True
     #: How to read the file (format, column map, units, capture binning; docs/formats.md).
     reader: Mapping[str, object] = field(default_factory=dict, hash=False)
-    deviation_unit_stated: bool = True
+    #: whether the plan gave ``deviation_unit``; it guides reading the file only, so two specs
+    #: of the same line compare equal with or without it (a project stores the unit read)
+    deviation_unit_stated: bool = field(default=True, compare=False)
 
     def __post_init__(self) -> None:
         where = f"line {self.name!r}"

@@ -25,11 +25,11 @@ sweep) and a time-only capture into time windows at one target.
 
 from __future__ import annotations
 
-import io
 import math
 import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from io import StringIO
 from pathlib import Path
 
 import numpy as np
@@ -341,7 +341,7 @@ def _read_text(
             with warnings.catch_warnings():
                 # a chunk of only blank or comment lines is fine (the file's tail)
                 warnings.simplefilter("ignore", UserWarning)
-                values = np.loadtxt(io.StringIO(text), delimiter=delimiter, usecols=usecols,
+                values = np.loadtxt(StringIO(text), delimiter=delimiter, usecols=usecols,
                                     comments=fmt.comment, ndmin=2, dtype=float)
         except ValueError:
             raise _bad_line(head, text, first_line, layout, usecols, fmt.comment) from None

@@ -343,9 +343,9 @@ def _read_columns(source: SourceText, declared: str | None) -> IsoTable:
             if cell.lower() in ("", "nan", "-"):
                 continue
             what = names[run_columns[run_key]]
-            value = parse_float(cell, source, number, what)
-            check_magnitude(value * factor, MAX_ABS_DEVIATION, source, number, what)
-            values[row, col] = value
+            reading = parse_float(cell, source, number, what)
+            check_magnitude(reading * factor, MAX_ABS_DEVIATION, source, number, what)
+            values[row, col] = reading
     file_targets = np.asarray(targets)
     _check_monotonic(source, file_targets, rows[0][0])
     if file_targets.size > 1 and file_targets[-1] < file_targets[0]:

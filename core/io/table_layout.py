@@ -195,6 +195,7 @@ def find_layout(source: SourceText, *, delimiter: str | None, data_marker: str |
     """The header, first data line and delimiter of a table (module notes)."""
     whitespace = delimiter is not None and delimiter.lower() in ("whitespace", "space", " ")
     fixed = None if whitespace else delimiter
+    header_line: int | None
     if data_marker is not None:
         marker = next((n for n, text in source.numbered()
                        if text.strip(BLANKS) == data_marker.strip()), None)
@@ -335,13 +336,13 @@ def resolve_columns(
                     f"(e.g. columns = {{ {f.name} = 2 }}, --columns {f.name}=2)",
                     where,
                 )
-            names = shown_names(layout.header)
+            listed = shown_names(layout.header)
             hint = (f"map it with columns = {{ {f.name} = \"…\" }} (--columns {f.name}=…)"
-                    if names.startswith("the header has") else
+                    if listed.startswith("the header has") else
                     "if the table starts below other text, give data_marker (--data-marker): "
                     "the line just before its header")
             raise source.error(
-                f"no {DESCRIPTION[f.name]} column named {ref or f.name!r}; {names}; {hint}",
+                f"no {DESCRIPTION[f.name]} column named {ref or f.name!r}; {listed}; {hint}",
                 where,
             )
         if len(found) > 1:

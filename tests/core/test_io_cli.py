@@ -214,3 +214,20 @@ def test_a_closed_pipe_ends_quietly(tmp_path):
     err = producer.stderr.read()
     assert producer.wait(timeout=120) == 141
     assert first == b"{\n" and err == b""
+
+
+def test_import_reads_outside_the_plan_folder_only_when_allowed(tmp_path, capsys):
+    folder = tmp_path / "plans"
+    folder.mkdir()
+    shutil.copy(DATA / "x_axis_hand.rtl", tmp_path / "x.rtl")
+    plan = folder / "plan.toml"
+    plan.write_text('[machine]\nstroke = { X = [0, 400], Y = [0, 400], Z = [0, 400] }\n\n'
+                    '[[line]]\nfile = "../x.rtl"\nquantity = "linear"\nstart = [0, 0, 0]\n'
+                    "direction = [1, 0, 0]\n")
+    project = tmp_path / "p.h5"
+    assert main(["import", str(project), str(plan)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "outside the plan's folder" in err and "line 5" in err
+    assert not project.exists()
+    assert main(["import", str(project), str(plan), "--files-root", str(tmp_path)]) == 0
+    assert "1 line(s), 20 readings" in capsys.readouterr().out
