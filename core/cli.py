@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 from collections.abc import Sequence
@@ -50,6 +51,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Exit status when the reader of our output went away (``volucal … | head -1``): the shell's
+#: 128 + SIGPIPE, as if the default signal action had ended the process.
+EXIT_BROKEN_PIPE = 141
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -58,6 +64,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         result = args.handler(args)
+        # flushed here, not at exit, so that a closed pipe is caught below
+        sys.stdout.flush()
+    except BrokenPipeError:
+        return _closed_pipe()
     except UserError as exc:
         if args.debug:
             raise
@@ -67,6 +77,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("volucal: interrupted", file=sys.stderr)
         return 130
     return int(result or 0)
+
+
+def _closed_pipe() -> int:
+    """The reader of stdout is gone: exit quietly (Python's documented recipe, "Note on
+    SIGPIPE"): point stdout at devnull so that the flush at interpreter exit cannot raise
+    again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        # stdout without a file descriptor (captured): nothing is left to flush
+        pass
+    return EXIT_BROKEN_PIPE
 
 
 if __name__ == "__main__":

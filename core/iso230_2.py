@@ -1,5 +1,5 @@
 """Positioning accuracy and repeatability by ISO 230-2 (clause 2 definitions), and ISO 230-1
-straightness against the least-squares and the end-point reference lines.
+straightness against the least-squares, the minimum-zone and the end-point reference lines.
 
 With x_ij = P_ij − P_i the deviation at target i in run j (``measured − target``), ↑ the runs that
 approach in the positive direction (``run_direction`` +1) and ↓ the others:
@@ -12,6 +12,15 @@ approach in the positive direction (``run_direction`` +1) and ↓ the others:
 - M = max x̄ − min x̄ (mean bidirectional positioning error);
 - A↑ = max(x̄↑ + 2s↑) − min(x̄↑ − 2s↑); A = max over both directions of (x̄ + 2s) − min over both of
   (x̄ − 2s) (accuracy).
+
+Straightness (ISO 230-1, 3.4.8 and 3.4.9): the range of the deviations about a reference straight
+line. The least-squares line minimises the sum of squared deviations; the minimum zone is the
+narrowest pair of parallel lines that enclose the points (their separation measured along the
+deviation, as ISO 230-1 does for a line), never more than the least-squares value; the end-point
+line joins the first and last points. :func:`minimum_zone` is exact: the zone width
+f(m) = max(y − m·x) − min(y − m·x) is convex and piecewise linear in the slope m with its breaks
+at the slopes of the edges of the points' convex hull, so its minimum is at one of those slopes,
+found by bisection over them in O(n log n).
 
 Written from these definitions (REFERENCE.md §5 warns that an open implementation has bugs).
 Values that cannot be computed (one run in a direction, no runs the other way) are NaN, and
@@ -154,21 +163,130 @@ def evaluate(data: LineData, unit: str = "um") -> Iso230Result:
     )
 
 
-def straightness(targets_mm: ArrayLike, deviation_um: ArrayLike) -> tuple[float, float]:
-    """ISO 230-1 straightness: the range of the deviations about the least-squares reference
-    line and about the end-point reference line (through the first and last points), in the
-    deviations' unit. Missing readings (NaN) are left out.
-    """
+#: How each straightness value is named in outputs.
+STRAIGHTNESS_METHODS = {
+    "least_squares": "least-squares reference line (ISO 230-1)",
+    "minimum_zone": "minimum zone (ISO 230-1)",
+    "end_point": "end-point reference line (ISO 230-1)",
+}
+
+
+@dataclass(frozen=True)
+class Straightness:
+    """Straightness of one profile in its deviations' unit, by each reference line, with the
+    slope (unit per mm) of the least-squares and minimum-zone lines."""
+
+    least_squares: float
+    minimum_zone: float
+    end_point: float
+    slope_least_squares: float
+    slope_minimum_zone: float
+
+    def to_json(self, unit: str) -> dict[str, object]:
+        return {
+            f"least_squares_{unit}": self.least_squares,
+            f"minimum_zone_{unit}": self.minimum_zone,
+            f"end_point_{unit}": self.end_point,
+            "methods": dict(STRAIGHTNESS_METHODS),
+        }
+
+
+def _profile(targets_mm: ArrayLike, deviation: ArrayLike) -> tuple[FloatArray, FloatArray]:
     x = np.asarray(targets_mm, dtype=float)
-    y = np.asarray(deviation_um, dtype=float)
+    y = np.asarray(deviation, dtype=float)
     keep = np.isfinite(x) & np.isfinite(y)
     x, y = x[keep], y[keep]
     if x.size < 2 or np.ptp(x) == 0:
         raise ValueError("straightness needs at least two readings at different targets")
-    slope, intercept = np.polyfit(x, y, 1)
-    about_ls = y - (slope * x + intercept)
-    order = np.argsort(x)
+    return x, y
+
+
+def straightness(targets_mm: ArrayLike, deviation_um: ArrayLike) -> tuple[float, float]:
+    """ISO 230-1 straightness: the range of the deviations about the least-squares reference
+    line and about the end-point reference line (through the first and last points), in the
+    deviations' unit. Missing readings (NaN) are left out. :func:`evaluate_straightness` adds
+    the minimum zone.
+    """
+    result = evaluate_straightness(targets_mm, deviation_um)
+    return result.least_squares, result.end_point
+
+
+def evaluate_straightness(targets_mm: ArrayLike, deviation: ArrayLike) -> Straightness:
+    """Straightness of a profile by the least-squares, minimum-zone and end-point reference
+    lines (module notes). Missing readings (NaN) are left out.
+
+    Raises
+    ------
+    ValueError
+        With fewer than two readings at different targets.
+    """
+    x, y = _profile(targets_mm, deviation)
+    # centred for conditioning: positions of hundreds of mm, deviations of µm
+    centre = float(np.mean(x))
+    slope, intercept = np.polyfit(x - centre, y, 1)
+    about_ls = y - (slope * (x - centre) + intercept)
+    order = np.argsort(x, kind="stable")
     x0, x1 = x[order[0]], x[order[-1]]
     y0, y1 = y[order[0]], y[order[-1]]
     about_ep = y - (y0 + (y1 - y0) * (x - x0) / (x1 - x0))
-    return float(np.ptp(about_ls)), float(np.ptp(about_ep))
+    zone, zone_slope, _ = minimum_zone(x, y)
+    return Straightness(
+        least_squares=float(np.ptp(about_ls)),
+        minimum_zone=zone,
+        end_point=float(np.ptp(about_ep)),
+        slope_least_squares=float(slope),
+        slope_minimum_zone=zone_slope,
+    )
+
+
+def minimum_zone(targets_mm: ArrayLike, deviation: ArrayLike) -> tuple[float, float, float]:
+    """The minimum-zone straightness of a profile: (width, slope, intercept) of the narrowest
+    band ``m·x + c ≤ y ≤ m·x + c + width`` that holds every point (module notes).
+
+    Raises
+    ------
+    ValueError
+        With fewer than two readings at different targets.
+    """
+    x, y = _profile(targets_mm, deviation)
+    centre = float(np.mean(x))
+    xc = x - centre
+    candidates = np.unique(np.concatenate([_hull_slopes(xc, y, upper=True),
+                                           _hull_slopes(xc, y, upper=False)]))
+
+    def width(m: float) -> float:
+        r = y - m * xc
+        return float(np.max(r) - np.min(r))
+
+    # f is convex over the sorted candidate slopes: bisect on its discrete slope
+    low, high = 0, candidates.size - 1
+    while low < high:
+        mid = (low + high) // 2
+        if width(candidates[mid]) <= width(candidates[mid + 1]):
+            high = mid
+        else:
+            low = mid + 1
+    m = float(candidates[low])
+    r = y - m * xc
+    return float(np.max(r) - np.min(r)), m, float(np.min(r)) - m * centre
+
+
+def _hull_slopes(x: FloatArray, y: FloatArray, *, upper: bool) -> FloatArray:
+    """Slopes of the edges of the upper (or lower) convex hull of the points (monotone chain)."""
+    order = np.lexsort((y, x))
+    xs, ys = x[order], y[order]
+    sign = 1.0 if upper else -1.0
+    hull: list[int] = []
+    for i in range(xs.size):
+        while len(hull) >= 2:
+            a, b = hull[-2], hull[-1]
+            cross = (xs[b] - xs[a]) * (ys[i] - ys[a]) - (ys[b] - ys[a]) * (xs[i] - xs[a])
+            if sign * cross >= 0:  # b is not strictly outside the chord a–i
+                hull.pop()
+            else:
+                break
+        hull.append(i)
+    index = np.asarray(hull)
+    dx = np.diff(xs[index])
+    keep = dx > 0
+    return np.diff(ys[index])[keep] / dx[keep]

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from .io.units import ANGLE_UNITS, DEVIATION_FACTOR
 from .machine import Machine
 from .userror import UserError
 
@@ -36,6 +37,10 @@ class LineSpec:
     ``reflector_mm`` is the optics position relative to the spindle gauge point; it replaces the
     machine's tool offset for this line. ``sensitive`` is the deviation direction of a
     straightness line or the rotation axis of an angular line.
+
+    ``deviation_unit`` is the unit of a file that does not state its own; it counts only when
+    ``deviation_unit_stated`` (a plan that omits it leaves the unit to the file, and a file
+    without one is then refused at import: volucal assumes no unit).
     """
 
     name: str
@@ -50,6 +55,9 @@ class LineSpec:
     env_corrected: bool = True
     #: How to read the file (format, column map, units, capture binning; docs/formats.md).
     reader: Mapping[str, object] = field(default_factory=dict, hash=False)
+    #: whether the plan gave ``deviation_unit``; it guides reading the file only, so two specs
+    #: of the same line compare equal with or without it (a project stores the unit read)
+    deviation_unit_stated: bool = field(default=True, compare=False)
 
     def __post_init__(self) -> None:
         where = f"line {self.name!r}"
@@ -77,9 +85,10 @@ class LineSpec:
                 )
             object.__setattr__(self, "sensitive", sensitive)
         expected = "urad" if self.quantity == "angular" else "um"
-        if self.deviation_unit not in ("um", "urad", "nm", "mm", "arcsec", "mrad"):
-            raise PlanError(f"{where}: deviation_unit {self.deviation_unit!r} is not supported")
-        if (self.deviation_unit in ("urad", "arcsec", "mrad")) != (expected == "urad"):
+        if self.deviation_unit not in DEVIATION_FACTOR:
+            raise PlanError(f"{where}: deviation_unit {self.deviation_unit!r} is not supported; "
+                            f"use one of {', '.join(DEVIATION_FACTOR)}")
+        if (self.deviation_unit in ANGLE_UNITS) != (expected == "urad"):
             raise PlanError(
                 f"{where}: deviation_unit {self.deviation_unit!r} does not fit a "
                 f"{self.quantity} line"
@@ -114,10 +123,12 @@ def _vec(values: Sequence[float], where: str) -> tuple[float, float, float]:
 
 def _unit(values: Sequence[float], where: str) -> tuple[float, float, float]:
     v = np.asarray(_vec(values, where))
-    norm = float(np.linalg.norm(v))
-    if norm < 1e-9:
+    scale = float(np.max(np.abs(v)))
+    if scale < 1e-9:
         raise PlanError(f"{where}: a zero-length vector has no direction")
-    v = v / norm
+    # scaled first: [1e308, 1e308, 0] has a direction although its norm overflows
+    v = v / scale
+    v = v / float(np.linalg.norm(v))
     return (float(v[0]), float(v[1]), float(v[2]))
 
 

@@ -2,7 +2,8 @@
 
 Creates the project when it does not exist, otherwise adds the lines to it. Prints the lines and
 readings imported, the sign convention each line was read with, the corrections applied, and every
-outlier flag with its reason; flagged readings are kept unless ``--drop-outliers`` is given.
+outlier flag with its reason; flagged readings are kept unless ``--drop-outliers`` is given. The
+plan's files are read from its own folder only, unless ``--files-root`` allows another.
 """
 
 from __future__ import annotations
@@ -34,11 +35,16 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--replace", action="store_true", help="replace lines the project already has"
     )
+    parser.add_argument(
+        "--files-root", type=Path, metavar="DIR",
+        help="let the plan read files under DIR (default: only the plan's own folder; a file "
+        "outside it, through '..', an absolute path or a symbolic link, is refused)",
+    )
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    plan = load_plan(args.plan)
+    plan = load_plan(args.plan, files_root=args.files_root)
     result = import_plan(plan, drop_outliers=args.drop_outliers)
     with ProjectLock(args.project):
         created = not args.project.exists()

@@ -13,8 +13,8 @@ Two forms are read (the first is detected by its ``TGT_DATA[`` entries):
 
   ``TGT_DATA[i]`` is target i, ``REF_DATA_FWD[i,j]`` / ``REF_DATA_BWD[i,j]`` the position the
   reference system read at target i in cycle j; the deviation is ``reference − target``, in
-  ``UNIT`` (default mm). Other keys (REF_PV, DEC, …) are kept in the header. Lines starting with
-  ``#`` are comments.
+  ``UNIT`` (the ecmc tools define mm when it is absent). Other keys (REF_PV, DEC, …) are kept
+  in the header. Lines starting with ``#`` are comments.
 
 - a column table (what :func:`write_iso_table` writes)::
 
@@ -22,7 +22,8 @@ Two forms are read (the first is detected by its ``TGT_DATA[`` entries):
       target_mm  up_1  up_2  down_1  down_2
       0          0.0   0.2   -1.8    -2.0
 
-  with deviations (``measured − target``) in ``unit`` (default µm); columns ``up_j``/``down_j``
+  with deviations (``measured − target``) in ``unit`` (required: in the file, or given by the plan
+  or the command line); columns ``up_j``/``down_j``
   (or ``fwd_j``/``bwd_j``) hold cycle j; an empty cell, ``nan`` or ``-`` is a missing reading.
 
 Forward (``up``) means travel in the order of the targets' numbers (ecmc) or towards increasing
@@ -41,15 +42,24 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..measurement import LineData
+from .limits import (
+    MAX_ABS_DEVIATION,
+    MAX_ABS_POSITION_MM,
+    MAX_READINGS,
+    MAX_RUNS,
+    MAX_TARGETS,
+    MIN_TARGET_SPACING_MM,
+    size_text,
+)
 from .rtl import reading_times
-from .source import SourceText, format_number, parse_float, parse_int
-from .table import detect_delimiter, split_fields
-from .units import DEVIATION_FACTOR, normalise_unit
+from .source import SourceText, check_magnitude, format_number, parse_float, parse_int, quote
+from .table_layout import detect_delimiter, split_fields
+from .units import ANGLE_UNITS, DEVIATION_FACTOR, choices, normalise_unit
 
 FloatArray = NDArray[np.float64]
 
-MAX_POSITIONS = 100_000
-MAX_CYCLES = 10_000
+MAX_POSITIONS = MAX_TARGETS
+MAX_CYCLES = MAX_RUNS // 2
 _ENTRY = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(?:\[\s*([^\]]*)\])?\s*=(.*)$")
 _RUN_COLUMN = re.compile(r"^(up|down|fwd|bwd|forward|backward)[ _\-]?(\d+)$")
 _TIME_SOURCE = "visit order (the file has no times): readings 1 s apart"
@@ -68,8 +78,11 @@ class IsoTable:
     raw: bytes = field(repr=False)
 
 
-def read_iso_table(path: str | Path) -> IsoTable:
+def read_iso_table(path: str | Path, unit: str | None = None) -> IsoTable:
     """Read an ISO 230-2 target/run table in either form.
+
+    ``unit`` is the deviation unit the plan or the command line gives; it must agree with the
+    file's (``UNIT=``, ``# unit:``) and is required for a column table that does not state one.
 
     Raises
     ------
@@ -78,9 +91,13 @@ def read_iso_table(path: str | Path) -> IsoTable:
         disagree with the entries.
     """
     source = SourceText.read(path)
+    declared = normalise_unit(unit) if unit else None
+    if declared is not None and declared not in DEVIATION_FACTOR:
+        raise source.error(f"deviation unit {unit!r} is not supported; use one of "
+                           f"{choices(tuple(DEVIATION_FACTOR))}", 1)
     if any("TGT_DATA[" in line.upper() for line in source.lines):
-        return _read_ecmc(source)
-    return _read_columns(source)
+        return _read_ecmc(source, declared)
+    return _read_columns(source, declared)
 
 
 def is_iso_table(source: SourceText) -> bool:
@@ -99,7 +116,7 @@ def is_iso_table(source: SourceText) -> bool:
 # ---- ecmc key=value ------------------------------------------------------------------------
 
 
-def _read_ecmc(source: SourceText) -> IsoTable:
+def _read_ecmc(source: SourceText, given_unit: str | None) -> IsoTable:
     header: dict[str, str] = {}
     declared: dict[str, tuple[int, int]] = {}
     targets: dict[int, tuple[float, int]] = {}
@@ -110,7 +127,8 @@ def _read_ecmc(source: SourceText) -> IsoTable:
             continue
         match = _ENTRY.match(text)
         if not match:
-            raise source.error(f"expected NAME=value or NAME[i]=value, found {stripped!r}", number)
+            raise source.error(f"expected NAME=value or NAME[i]=value, found {quote(stripped)}",
+                               number)
         name, index, value = match.group(1).upper(), match.group(2), match.group(3).strip()
         if name in ("CYCLES", "POSITIONS"):
             count = parse_int(value, source, number, name)
@@ -122,7 +140,9 @@ def _read_ecmc(source: SourceText) -> IsoTable:
             i = _indexes(index, 1, source, number, name)[0]
             if i in targets:
                 raise source.error(f"TGT_DATA[{i}] is given twice", number)
-            targets[i] = (parse_float(value, source, number, f"TGT_DATA[{i}]"), number)
+            target = parse_float(value, source, number, f"TGT_DATA[{i}]")
+            check_magnitude(target, MAX_ABS_POSITION_MM, source, number, f"TGT_DATA[{i}]")
+            targets[i] = (target, number)
         elif name in ("REF_DATA_FWD", "REF_DATA_BWD"):
             i, j = _indexes(index, 2, source, number, name)
             table = readings[name[-3:]]
@@ -131,15 +151,22 @@ def _read_ecmc(source: SourceText) -> IsoTable:
             table[(i, j)] = (parse_float(value, source, number, f"{name}[{i},{j}]"), number)
         elif index is None:
             header[name] = value
-    unit = normalise_unit(header.get("UNIT", "mm"))
-    if unit not in DEVIATION_FACTOR:
-        raise source.error(f"UNIT={header['UNIT']!r} is not a supported unit", _line_of(
-            source, "UNIT"))
+    unit = normalise_unit(header["UNIT"]) if "UNIT" in header else (given_unit or "mm")
+    if unit not in DEVIATION_FACTOR or unit in ANGLE_UNITS:
+        raise source.error(f"UNIT={quote(header['UNIT'])} is not a supported length unit; use "
+                           "one of um, nm, mm, m, inch", _line_of(source, "UNIT"))
+    if given_unit is not None and given_unit != unit:
+        raise source.error(f"the file's UNIT is {unit!r} but the unit given is {given_unit!r}; "
+                           "correct one of them", _line_of(source, "UNIT"))
     if not targets:
         raise source.error("no TGT_DATA[i] entries", source.last_line)
     positions = declared.get("POSITIONS", (max(targets), source.last_line))
     cycles_seen = max((j for table in readings.values() for _, j in table), default=0)
     cycles = declared.get("CYCLES", (cycles_seen, source.last_line))
+    if positions[0] * cycles[0] * 2 > MAX_READINGS:
+        raise source.error(f"POSITIONS={positions[0]} × CYCLES={cycles[0]} × 2 directions is "
+                           f"beyond the {size_text(MAX_READINGS)} readings a line may hold "
+                           "(docs/formats.md, Limits)", positions[1])
     for i, (_, number) in targets.items():
         if i > positions[0]:
             raise source.error(f"TGT_DATA[{i}] is beyond POSITIONS={positions[0]}", number)
@@ -169,11 +196,18 @@ def _read_ecmc(source: SourceText) -> IsoTable:
                     )
     file_targets = np.array([targets[i][0] for i in range(1, positions[0] + 1)])
     _check_monotonic(source, file_targets, targets[1][1])
+    factor = DEVIATION_FACTOR[unit]
     runs = []
     for j in range(1, cycles[0] + 1):
         for kind in kinds:
-            runs.append([readings[kind][(i, j)][0] - targets[i][0]
-                         for i in range(1, positions[0] + 1)])
+            run = []
+            for i in range(1, positions[0] + 1):
+                reading, number = readings[kind][(i, j)]
+                deviation = reading - targets[i][0]
+                check_magnitude(deviation * factor, MAX_ABS_DEVIATION, source, number,
+                                f"REF_DATA_{kind}[{i},{j}] − TGT_DATA[{i}] (µm)")
+                run.append(deviation)
+            runs.append(run)
     forward = 1 if positions[0] == 1 or file_targets[-1] > file_targets[0] else -1
     direction = [forward if kind == "FWD" else -forward for _ in range(cycles[0]) for kind in kinds]
     data = _line_data(file_targets, np.asarray(runs), np.asarray(direction))
@@ -202,6 +236,10 @@ def _check_monotonic(source: SourceText, targets: FloatArray, line: int) -> None
     steps = np.diff(targets)
     if targets.size > 1 and not (np.all(steps > 0) or np.all(steps < 0)):
         raise source.error("targets must be strictly increasing or strictly decreasing", line)
+    if targets.size > 1 and np.min(np.abs(steps)) < MIN_TARGET_SPACING_MM:
+        raise source.error(f"two targets are {np.min(np.abs(steps)):g} mm apart; targets of a "
+                           f"line are at least {MIN_TARGET_SPACING_MM:g} mm apart "
+                           "(docs/formats.md, Limits)", line)
 
 
 def _line_data(
@@ -224,7 +262,7 @@ def _line_data(
 # ---- column form ----------------------------------------------------------------------------
 
 
-def _read_columns(source: SourceText) -> IsoTable:
+def _read_columns(source: SourceText, declared: str | None) -> IsoTable:
     header: dict[str, str] = {}
     names: list[str] | None = None
     delimiter: str | None = None
@@ -270,21 +308,44 @@ def _read_columns(source: SourceText) -> IsoTable:
         raise source.error("no up_j / down_j columns", header_line)
     if not rows:
         raise source.error("the table has no rows", source.last_line)
-    unit = normalise_unit(header.get("unit", "um"))
-    if unit not in DEVIATION_FACTOR:
-        raise source.error(f"unit {header['unit']!r} is not supported", 1)
+    unit_line = next((n for n, text in source.numbered()
+                      if re.match(r"^\s*#\s*unit\s*:", text, re.IGNORECASE)), 1)
+    if "unit" in header:
+        unit = normalise_unit(header["unit"])
+        if unit not in DEVIATION_FACTOR:
+            raise source.error(f"unit {quote(header['unit'])} is not supported; use one of "
+                               f"{choices(tuple(DEVIATION_FACTOR))}", unit_line)
+        if declared is not None and declared != unit:
+            raise source.error(f"the file's unit is {unit!r} but the unit given is "
+                               f"{declared!r}; correct one of them", unit_line)
+    elif declared is not None:
+        unit = declared
+    else:
+        raise source.error(
+            "the table does not state its deviation unit and volucal does not assume one: add a "
+            "line '# unit: um' (or nm, mm, urad, arcsec, …), or give deviation_unit in the plan "
+            "(--unit on the command line)", header_line)
+    if len(rows) * len(run_columns) > MAX_READINGS:
+        raise source.error(f"{len(rows)} targets × {len(run_columns)} runs is beyond the "
+                           f"{size_text(MAX_READINGS)} readings a line may hold", header_line)
+    factor = DEVIATION_FACTOR[unit]
     targets = []
     values = np.full((len(rows), len(run_columns)), np.nan)
     keys = sorted(run_columns, key=run_columns.__getitem__)  # runs in column order
     for row, (number, cells) in enumerate(rows):
         if len(cells) != len(names):
             raise source.error(f"expected {len(names)} fields, found {len(cells)}", number)
-        targets.append(parse_float(cells[target_names[0]], source, number, "target"))
+        target = parse_float(cells[target_names[0]], source, number, "target")
+        targets.append(check_magnitude(target, MAX_ABS_POSITION_MM, source, number,
+                                       "target (mm)"))
         for col, run_key in enumerate(keys):
             cell = cells[run_columns[run_key]]
             if cell.lower() in ("", "nan", "-"):
                 continue
-            values[row, col] = parse_float(cell, source, number, names[run_columns[run_key]])
+            what = names[run_columns[run_key]]
+            reading = parse_float(cell, source, number, what)
+            check_magnitude(reading * factor, MAX_ABS_DEVIATION, source, number, what)
+            values[row, col] = reading
     file_targets = np.asarray(targets)
     _check_monotonic(source, file_targets, rows[0][0])
     if file_targets.size > 1 and file_targets[-1] < file_targets[0]:

@@ -3,16 +3,32 @@ written; and the import of every line's file into a :class:`Measurement`.
 
 Validation errors are :class:`FormatError` naming the plan file, the line of the plan and, for a
 ``[[line]]`` entry, its number and name and the field (``[[line]] 2 ('x_y0_z0'), field
-'direction': …``). Relative ``file`` paths resolve against the plan file's folder.
+'direction': …``).
+
+A plan names files, and a plan may come from anyone: ``file`` resolves inside the plan's folder
+(relative paths, symbolic links and ``..`` all followed) unless the caller allows another folder
+explicitly (``files_root``; ``--files-root`` on the command line). A file outside it, or whose name
+does not end as a measurement file does (:data:`MEASUREMENT_EXTENSIONS`) and whose ``format`` is
+not given, is refused before a byte of it is read, so that no error can quote another file's
+content. FIFOs, devices and folders are refused by the readers before they block or stream.
+
+**Units.** ``deviation_unit`` is the unit of a file that does not state its own. A file that states
+it (a .rtl is µm and a .rta µrad by definition; a header ``Flat [mm]``; ``# unit: nm``; ``UNIT=``;
+a capture's ``Units:``) needs none, and a ``deviation_unit`` that contradicts it is refused. A file
+that does not state it and a plan without ``deviation_unit`` is refused with a message asking for
+it: volucal assumes no unit. The same holds for the table options ``time_unit``, ``pressure_unit``
+and ``temperature_unit``; positions are mm unless the file or ``position_unit`` says otherwise
+(the plan's lengths are mm).
 
 Fields volucal adds to the DESIGN.md ones (all optional; docs/formats.md describes them):
 
 - ``[[line]]``: ``format`` (rtl, rta, table, iso230-2, capture; default from the file), ``columns``
   (column map of a table or CSV capture), ``position_unit``, ``time_unit``, ``pressure_unit``,
-  ``delimiter``, ``data_marker``, ``target_tolerance_mm``, ``capture_step_mm``,
-  ``capture_window_mm``, ``capture_step_s``, ``capture_rate_hz``, ``expansion_ppm_per_c``
-  (material expansion for ``env_corrected = false``; default the file's), ``assumed_air_index``
-  (the index an uncompensated laser assumed; default air at 20 °C, 101.325 kPa, 50 %RH);
+  ``temperature_unit``, ``delimiter``, ``data_marker``, ``target_tolerance_mm``,
+  ``capture_step_mm``, ``capture_window_mm``, ``capture_step_s``, ``capture_rate_hz``,
+  ``expansion_ppm_per_c`` (material expansion for ``env_corrected = false``; default the
+  file's), ``assumed_air_index`` (the index an uncompensated laser assumed; default air at
+  20 °C, 101.325 kPa, 50 %RH);
 - ``[uncertainty]``: standard uncertainties of the measurement chain (keys in UNCERTAINTY_KEYS).
 """
 
@@ -38,6 +54,7 @@ from ..progress import CancelToken, ProgressCallback, check, report
 from ..userror import FormatError
 from .capture import Capture, capture_line_data, read_capture
 from .iso_table import is_iso_table, read_iso_table
+from .limits import MIN_TARGET_SPACING_MM
 from .rtl import read_rtl
 from .source import SourceText
 from .table import ColumnMap, TableFormat, read_table
@@ -45,7 +62,10 @@ from .units import (
     DEVIATION_FACTOR,
     POSITION_FACTOR,
     PRESSURE_FACTOR_KPA,
+    TEMPERATURE_UNITS,
     TIME_FACTOR,
+    choices,
+    describe,
     is_angle,
     normalise_unit,
 )
@@ -74,6 +94,7 @@ READER_KEYS: dict[str, tuple[type, ...]] = {
     "position_unit": (str,),
     "time_unit": (str,),
     "pressure_unit": (str,),
+    "temperature_unit": (str,),
     "delimiter": (str,),
     "data_marker": (str,),
     "target_tolerance_mm": (int, float),
@@ -87,6 +108,8 @@ READER_KEYS: dict[str, tuple[type, ...]] = {
 FORMATS = ("rtl", "rta", "table", "iso230-2", "capture")
 _EXTENSION_FORMAT = {".rtl": "rtl", ".rta": "rta", ".rtx": "capture"}
 _TEXT_EXTENSIONS = (".csv", ".txt", ".dat", ".tsv", ".prn", ".iso")
+#: File names a plan may list without a ``format``: what laser software and volucal write.
+MEASUREMENT_EXTENSIONS = tuple(_EXTENSION_FORMAT) + _TEXT_EXTENSIONS
 _POSITION = re.compile(r"\(at (?:line (\d+), column \d+|end of document)\)")
 
 
@@ -136,11 +159,18 @@ def _entry_label(index: int, name: object) -> str:
     return f"{label} ({name!r})" if isinstance(name, str) and name else label
 
 
-def load_plan(path: str | Path) -> Plan:
+def load_plan(path: str | Path, files_root: str | Path | None = None) -> Plan:
     """Read and validate a plan.toml.
 
     Returns a :class:`Plan` whose LineSpec ``file`` paths are absolute (resolved against the
     plan's folder) and whose ``reader`` mappings hold the reader options given.
+
+    Parameters
+    ----------
+    path : the plan file.
+    files_root : the folder the plan's files must lie in (after following symbolic links and
+        ``..``); default the plan's own folder. Giving it is the user's explicit permission to read
+        files elsewhere.
 
     Raises
     ------
@@ -172,7 +202,13 @@ def load_plan(path: str | Path) -> Plan:
     if not isinstance(entries, list) or not entries:
         raise FormatError(path, "the plan has no [[line]] entries (each line is a [[line]] "
                           "table)", locate.tables.get("line", end))
-    specs = [_line(path, index, entry, machine, locate) for index, entry in enumerate(entries)]
+    try:
+        folder = Path(os.path.realpath(path.parent))
+        root = Path(os.path.realpath(files_root)) if files_root is not None else folder
+    except (OSError, RuntimeError, ValueError):
+        raise FormatError(path, "its folder cannot be resolved") from None
+    specs = [_line(path, index, entry, machine, locate, root, files_root is not None)
+             for index, entry in enumerate(entries)]
     seen: dict[str, int] = {}
     for index, spec in enumerate(specs):
         if spec.name in seen:
@@ -184,7 +220,8 @@ def load_plan(path: str | Path) -> Plan:
             )
         seen[spec.name] = index
     uncertainty = _uncertainty(path, document.get("uncertainty", {}), locate)
-    return Plan(machine=machine, lines=tuple(specs), path=path.resolve(), uncertainty=uncertainty)
+    return Plan(machine=machine, lines=tuple(specs), path=Path(os.path.realpath(path)),
+                uncertainty=uncertainty)
 
 
 def _machine(path: Path, table: object, locate: _Locator, end: int) -> Machine:
@@ -222,7 +259,8 @@ def _machine(path: Path, table: object, locate: _Locator, end: int) -> Machine:
                           locate.field(where, key)) from None
 
 
-def _line(path: Path, index: int, entry: object, machine: Machine, locate: _Locator) -> LineSpec:
+def _line(path: Path, index: int, entry: object, machine: Machine, locate: _Locator,
+          root: Path, root_given: bool) -> LineSpec:
     start_line = locate.entry(index)
     if not isinstance(entry, dict):
         raise FormatError(path, f"{_entry_label(index, None)}: expected a table", start_line or 1)
@@ -241,7 +279,8 @@ def _line(path: Path, index: int, entry: object, machine: Machine, locate: _Loca
             raise FormatError(path, f"{label}: field {key!r} is required", start_line)
     if not isinstance(entry["file"], str) or not entry["file"].strip() or "\x00" in entry["file"]:
         raise fail("file", "expected a path string")
-    file_path = (path.parent / entry["file"]).resolve()
+    reader = _reader_options(entry, fail)
+    file_path = _data_file(path, entry["file"], root, root_given, "format" in reader, fail)
     name = entry.get("name", Path(entry["file"]).stem)
     if not isinstance(name, str) or not name.strip():
         raise fail("name", "expected a non-empty string")
@@ -260,9 +299,10 @@ def _line(path: Path, index: int, entry: object, machine: Machine, locate: _Loca
     env = entry.get("env_corrected", True)
     if not isinstance(env, bool):
         raise fail("env_corrected", f"expected true or false, got {env!r}")
-    reader = _reader_options(entry, fail)
     quantity = entry["quantity"]
-    unit = entry.get("deviation_unit", "urad" if quantity == "angular" else "um")
+    stated = "deviation_unit" in entry
+    unit = normalise_unit(entry["deviation_unit"]) if stated else (
+        "urad" if quantity == "angular" else "um")
     try:
         return LineSpec(
             name=name,
@@ -276,6 +316,7 @@ def _line(path: Path, index: int, entry: object, machine: Machine, locate: _Loca
             sign=sign,
             env_corrected=env,
             reader=reader,
+            deviation_unit_stated=stated,
         )
     except PlanError as exc:
         # LineSpec's messages read "line 'name': <field> …"
@@ -284,6 +325,30 @@ def _line(path: Path, index: int, entry: object, machine: Machine, locate: _Loca
                          message)
         key = match.group(1) if match else "quantity"
         raise fail(key, message.removeprefix(f"{key}: ")) from None
+
+
+def _data_file(plan: Path, name: str, root: Path, root_given: bool, format_given: bool,
+               fail: Any) -> Path:
+    """The real path of a plan's ``file``, inside ``root`` and named as a measurement file (module
+    notes); nothing of the file is read here."""
+    candidate = Path(name)
+    if not candidate.is_absolute():
+        candidate = plan.parent / candidate
+    try:
+        real = Path(os.path.realpath(candidate))
+    except (OSError, RuntimeError, ValueError):
+        raise fail("file", f"{name!r} cannot be resolved (a loop of symbolic links?)") from None
+    if not real.is_relative_to(root):
+        where = "the allowed folder" if root_given else "the plan's folder"
+        raise fail("file", f"{name!r} resolves to {str(real)!r}, outside {where} "
+                   f"{str(root)!r}; volucal reads a plan's files only from there. Move the file "
+                   "into that folder, or allow its folder explicitly (--files-root DIR on the "
+                   "command line, files_root= in load_plan)")
+    if real.suffix.lower() not in MEASUREMENT_EXTENSIONS and not format_given:
+        raise fail("file", f"{name!r} is not named as a measurement file "
+                   f"({', '.join(MEASUREMENT_EXTENSIONS)}); if it is one, say how to read it with "
+                   "format = \"table\" (or rtl, rta, iso230-2, capture)")
+    return real
 
 
 def _check_vector(value: object, fail: Any, key: str) -> None:
@@ -312,9 +377,13 @@ def _reader_options(entry: dict[str, Any], fail: Any) -> dict[str, object]:
         except ValueError as exc:
             raise fail("columns", str(exc)) from None
     for key, known in (("position_unit", POSITION_FACTOR), ("time_unit", TIME_FACTOR),
-                       ("pressure_unit", PRESSURE_FACTOR_KPA)):
+                       ("pressure_unit", PRESSURE_FACTOR_KPA),
+                       ("temperature_unit", TEMPERATURE_UNITS)):
         if key in reader and normalise_unit(str(reader[key])) not in known:
-            raise fail(key, f"{reader[key]!r} is not one of {', '.join(known)}")
+            raise fail(key, f"{reader[key]!r} is not one of {choices(tuple(known))}")
+    for key in ("target_tolerance_mm", "capture_step_mm"):
+        if key in reader and float(reader[key]) < MIN_TARGET_SPACING_MM:  # type: ignore[arg-type]
+            raise fail(key, f"expected at least {MIN_TARGET_SPACING_MM} mm, got {reader[key]!r}")
     if reader.get("delimiter") == "":
         raise fail("delimiter", "use ',', ';', a tab or \"whitespace\"")
     return reader
@@ -396,9 +465,10 @@ def plan_text(plan: Plan, folder: str | Path | None = None) -> str:
         ]
         if spec.sensitive is not None:
             lines.append(f"sensitive = {_toml_value(list(spec.sensitive))}")
+        lines.append(f"reflector = {_toml_value(list(spec.reflector_mm))}")
+        if spec.deviation_unit_stated:
+            lines.append(f"deviation_unit = {_toml_value(spec.deviation_unit)}")
         lines += [
-            f"reflector = {_toml_value(list(spec.reflector_mm))}",
-            f"deviation_unit = {_toml_value(spec.deviation_unit)}",
             f"sign = {spec.sign}",
             f"env_corrected = {_toml_value(spec.env_corrected)}",
         ]
@@ -507,34 +577,47 @@ def detect_format(spec: LineSpec) -> str:
     return "table"
 
 
-def _table_format(reader: Mapping[str, object]) -> TableFormat:
+def _table_format(reader: Mapping[str, object], deviation_unit: str | None) -> TableFormat:
     columns = reader.get("columns")
     return TableFormat(
         columns=ColumnMap.from_mapping(columns) if isinstance(columns, dict) else ColumnMap(),
         position_unit=reader.get("position_unit"),  # type: ignore[arg-type]
+        deviation_unit=deviation_unit,
         time_unit=reader.get("time_unit"),  # type: ignore[arg-type]
         pressure_unit=reader.get("pressure_unit"),  # type: ignore[arg-type]
+        temperature_unit=reader.get("temperature_unit"),  # type: ignore[arg-type]
         delimiter=reader.get("delimiter"),  # type: ignore[arg-type]
         data_marker=reader.get("data_marker"),  # type: ignore[arg-type]
         target_tolerance_mm=float(reader.get("target_tolerance_mm", 1e-3)),  # type: ignore[arg-type]
     )
 
 
-def read_line_file(spec: LineSpec) -> tuple[str, LineData, str | None, bytes, Capture | None]:
-    """(format, raw data as in the file, the file's own deviation unit or None, bytes, capture)."""
+def read_line_file(spec: LineSpec) -> tuple[str, LineData, str, bytes, Capture | None]:
+    """(format, raw data as in the file, the file's deviation unit, bytes, capture).
+
+    The unit is the file's own, or the plan's ``deviation_unit`` for a file that states none
+    (module notes); a contradiction or no unit at all is refused.
+    """
     fmt = detect_format(spec)
     path = Path(spec.file or "")
+    stated = spec.deviation_unit if spec.deviation_unit_stated else None
     if fmt in ("rtl", "rta"):
         rtl = read_rtl(path)
         if rtl.angular and spec.quantity != "angular":
             raise FormatError(path, f"this is an angular log (.rta) but the plan's line "
                               f"{spec.name!r} has quantity = {spec.quantity!r}", 1)
-        return fmt, rtl.data, None, rtl.raw, None
+        if stated is not None and stated != rtl.unit:
+            raise LineFieldError(
+                spec.name, "deviation_unit",
+                f"the file is a Renishaw {'.rta' if rtl.angular else '.rtl'} log, whose "
+                f"deviations are in {describe(rtl.unit)} by definition, but the plan says "
+                f"{describe(stated)}; remove deviation_unit or correct it")
+        return fmt, rtl.data, rtl.unit, rtl.raw, None
     if fmt == "iso230-2":
-        table = read_iso_table(path)
+        table = read_iso_table(path, stated)
         return fmt, table.data, table.unit, table.raw, None
     if fmt == "capture":
-        capture = read_capture(path, _table_format(spec.reader),
+        capture = read_capture(path, _table_format(spec.reader, stated),
                                sample_rate_hz=spec.reader.get("capture_rate_hz"))  # type: ignore[arg-type]
         try:
             data = capture_line_data(
@@ -545,15 +628,17 @@ def read_line_file(spec: LineSpec) -> tuple[str, LineData, str | None, bytes, Ca
             )
         except ValueError as exc:
             raise LineFieldError(spec.name, "capture_step_mm", str(exc)) from None
+        if capture.unit is None:
+            raise LineFieldError(spec.name, "deviation_unit", "the capture does not state its "
+                                 "deviation unit: give deviation_unit")
         return fmt, data, capture.unit, capture.raw, capture
-    table_file = read_table(path, _table_format(spec.reader))
+    table_file = read_table(path, _table_format(spec.reader, stated))
     return fmt, table_file.data, table_file.unit, table_file.raw, None
 
 
 def import_line(spec: LineSpec, *, drop_outliers: bool = False) -> LineImport:
     """Read one line's file and convert it to volucal's units and sign (module notes)."""
-    fmt, raw, file_unit, source_bytes, capture = read_line_file(spec)
-    unit = file_unit or spec.deviation_unit
+    fmt, raw, unit, source_bytes, capture = read_line_file(spec)
     if is_angle(unit) != (spec.quantity == "angular"):
         kind = "an angle" if is_angle(unit) else "a length"
         raise LineFieldError(spec.name, "deviation_unit", f"the file's deviations are in {unit} "
@@ -564,6 +649,13 @@ def import_line(spec: LineSpec, *, drop_outliers: bool = False) -> LineImport:
     notes: list[str] = []
     if unit not in ("um", "urad"):
         corrections.append(f"deviations converted from {unit} to {spec.unit}")
+    # a table's environment is converted as it is read; say so
+    pressure_unit = raw.metadata.get("pressure_unit_in_file")
+    if pressure_unit not in (None, "kPa"):
+        corrections.append(f"air pressure converted from {pressure_unit} to kPa")
+    temperature_unit = raw.metadata.get("temperature_unit_in_file")
+    if temperature_unit not in (None, "°C"):
+        corrections.append(f"temperatures converted from {temperature_unit} to °C")
     if not spec.env_corrected:
         if spec.quantity == "linear":
             assumed = spec.reader.get("assumed_air_index")
@@ -635,7 +727,7 @@ def import_plan(
 
         if spec.file is None:
             raise fail("file", "the line has no file")
-        if not Path(spec.file).is_file():
+        if not os.path.lexists(spec.file):
             raise fail("file", f"{spec.file} does not exist")
         try:
             imported.append(import_line(spec, drop_outliers=drop_outliers))

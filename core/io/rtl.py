@@ -43,13 +43,31 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..measurement import Environment, LineData
+from .limits import (
+    HUMIDITY_RANGE_PCT,
+    MAX_ABS_DEVIATION,
+    MAX_ABS_EXPANSION_PPM,
+    MAX_ABS_POSITION_MM,
+    MAX_READINGS,
+    MAX_RUNS,
+    MAX_TARGETS,
+    MIN_TARGET_SPACING_MM,
+    RTL_AIR_TEMP_RANGE_C,
+    RTL_MATERIAL_TEMP_RANGE_C,
+    RTL_PRESSURE_RANGE_KPA,
+    size_text,
+)
 from .source import (
     SourceText,
+    check_magnitude,
+    check_range,
     format_number,
     format_time_rtl,
+    is_number,
     parse_float,
     parse_int,
     parse_time,
+    quote,
 )
 
 FloatArray = NDArray[np.float64]
@@ -57,9 +75,6 @@ FloatArray = NDArray[np.float64]
 REQUIRED_SECTIONS = ("HEADER", "TARGET DATA", "RUNS", "DEVIATIONS", "ENVIRONMENT", "EOF")
 #: Mat temp values at or below this are sensors marked unused (the file writes −10).
 UNUSED_SENSOR_C = -9.5
-#: Upper bounds that keep a damaged count from allocating absurd arrays.
-MAX_TARGETS = 100_000
-MAX_RUNS = 10_000
 
 _SECTION = re.compile(r"^\s*([A-Za-z][A-Za-z \-]*?)\s*::\s*$")
 _USER_TEXT_KEYS = {
@@ -237,7 +252,7 @@ def _key_values(section: _Section, source: SourceText) -> dict[str, str]:
         key, colon, value = text.partition(":")
         if not colon:
             raise source.error(
-                f"{section.name}:: expected 'name : value', found {text.strip()!r}", number
+                f"{section.name}:: expected 'name : value', found {quote(text)}", number
             )
         values[key.strip()] = value.strip()
     return values
@@ -272,9 +287,9 @@ def _targets(section: _Section, source: SourceText) -> tuple[FloatArray, dict[st
             in_targets = True
             targets_line = number
             for token in rest.split():
-                values.append(parse_float(token, source, number, "target position (mm)"))
+                values.append(_target(token, source, number))
             continue
-        if colon and not _is_number(key):
+        if colon and not is_number(key):
             in_targets = False
             fields[key.strip()] = rest.strip()
             if key_norm == "target-count":
@@ -283,11 +298,15 @@ def _targets(section: _Section, source: SourceText) -> tuple[FloatArray, dict[st
             continue
         if not in_targets:
             raise source.error(
-                f"TARGET DATA:: unexpected line {stripped!r}; target positions follow 'Targets :'",
+                f"TARGET DATA:: unexpected line {quote(stripped)}; target positions follow "
+                "'Targets :'",
                 number,
             )
         for token in stripped.split():
-            values.append(parse_float(token, source, number, "target position (mm)"))
+            values.append(_target(token, source, number))
+            if len(values) > MAX_TARGETS:
+                raise source.error(f"more than {size_text(MAX_TARGETS)} target positions "
+                                   "(docs/formats.md, Limits)", number)
     if count is None:
         raise source.error("TARGET DATA:: has no 'Target-count:' line", section.line)
     if targets_line is None:
@@ -305,15 +324,16 @@ def _targets(section: _Section, source: SourceText) -> tuple[FloatArray, dict[st
         raise source.error(
             "target positions must be strictly increasing or strictly decreasing", targets_line
         )
+    if count > 1 and np.min(np.abs(steps)) < MIN_TARGET_SPACING_MM:
+        raise source.error(
+            f"two targets are {np.min(np.abs(steps)):g} mm apart; targets of a line are at least "
+            f"{MIN_TARGET_SPACING_MM:g} mm apart (docs/formats.md, Limits)", targets_line)
     return targets, fields
 
 
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
+def _target(token: str, source: SourceText, number: int) -> float:
+    value = parse_float(token, source, number, "target position (mm)")
+    return check_magnitude(value, MAX_ABS_POSITION_MM, source, number, "target position (mm)")
 
 
 def _run_count(section: _Section, source: SourceText) -> int:
@@ -335,46 +355,58 @@ def _deviations(
         if " ".join(text.strip().lower().split()).startswith("run target data"):
             break
         raise source.error(
-            f"DEVIATIONS:: expected 'Run Target Data:', found {text.strip()!r}", number
+            f"DEVIATIONS:: expected 'Run Target Data:', found {quote(text)}", number
         )
     else:
         raise source.error("DEVIATIONS:: has no 'Run Target Data:' line", section.line)
-    values = np.full((runs, targets), np.nan)
-    seen_at = np.zeros((runs, targets), dtype=np.int64)
+    # the claimed size is checked before anything of that size exists
+    expected = runs * targets
+    if expected > MAX_READINGS:
+        raise source.error(
+            f"Run-count {runs} × Target-count {targets} = {size_text(expected)} readings, beyond "
+            f"the {size_text(MAX_READINGS)} a line may hold (docs/formats.md, Limits)",
+            section.line,
+        )
+    seen_at: dict[tuple[int, int], int] = {}
+    values: list[float] = []
+    cells: list[int] = []
     sequence: dict[int, list[tuple[int, int]]] = {}
-    rows = 0
     for number, text in body:
         tokens = text.split()
         if len(tokens) != 3:
             raise source.error(
-                f"expected a row 'run target deviation', found {text.strip()!r}", number
+                f"expected a row 'run target deviation', found {quote(text)}", number
             )
         run = parse_int(tokens[0], source, number, "run number")
         target = parse_int(tokens[1], source, number, "target number")
         value = parse_float(tokens[2], source, number, "deviation")
+        check_magnitude(value, MAX_ABS_DEVIATION, source, number, "deviation")
         if not 1 <= run <= runs:
             raise source.error(f"run {run} is outside 1…{runs} (Run-count)", number)
         if not 1 <= target <= targets:
             raise source.error(f"target {target} is outside 1…{targets} (Target-count)", number)
-        if seen_at[run - 1, target - 1]:
+        if (run, target) in seen_at:
             raise source.error(
                 f"run {run}, target {target} appears twice (first at line "
-                f"{seen_at[run - 1, target - 1]})",
+                f"{seen_at[(run, target)]})",
                 number,
             )
-        seen_at[run - 1, target - 1] = number
-        values[run - 1, target - 1] = value
+        seen_at[(run, target)] = number
+        values.append(value)
+        cells.append((run - 1) * targets + (target - 1))
         sequence.setdefault(run, []).append((target, number))
-        rows += 1
-    if rows != runs * targets:
-        missing = np.argwhere(seen_at == 0)
-        run, target = (int(missing[0][0]) + 1, int(missing[0][1]) + 1)
+    if len(values) != expected:
+        missing = next((r, t) for r in range(1, runs + 1) for t in range(1, targets + 1)
+                       if (r, t) not in seen_at)
         last = section.body[-1][0]
         raise source.error(
-            f"{rows} deviation rows for Run-count {runs} × Target-count {targets} = "
-            f"{runs * targets}; run {run}, target {target} is missing (the file may be cut short)",
+            f"{len(values)} deviation rows for Run-count {runs} × Target-count {targets} = "
+            f"{expected}; run {missing[0]}, target {missing[1]} is missing (the file may be cut "
+            "short)",
             last,
         )
+    grid = np.empty(expected)
+    grid[np.asarray(cells, dtype=np.int64)] = values
     order: dict[int, tuple[str, int]] = {}
     for run, visits in sequence.items():
         numbers = [t for t, _ in visits]
@@ -383,7 +415,7 @@ def _deviations(
             order[run] = ("descending", visits[0][1])
         else:
             order[run] = ("ascending" if np.all(steps > 0) else "mixed", visits[0][1])
-    return values, order
+    return grid.reshape(runs, targets), order
 
 
 def _environment(
@@ -402,15 +434,20 @@ def _environment(
         lines[name] = number
     by_name = {" ".join(k.lower().split()): v for k, v in fields.items()}
 
-    def pair(name: str, what: str) -> tuple[float, float] | None:
+    def pair(name: str, what: str,
+             bounds: tuple[float, float] | None = None) -> tuple[float, float] | None:
         if name not in by_name:
             return None
         tokens = by_name[name].split()
         if len(tokens) < 2:
             raise source.error(f"{what}: expected 'start end [flag]'", lines[name])
-        start_value = parse_float(tokens[0], source, lines[name], f"{what} at start")
-        end_value = parse_float(tokens[1], source, lines[name], f"{what} at end")
-        return (start_value, end_value)
+        values = []
+        for token, when in zip(tokens[:2], ("start", "end"), strict=True):
+            value = parse_float(token, source, lines[name], f"{what} at {when}")
+            if bounds is not None:
+                check_range(value, *bounds, source, lines[name], f"{what} at {when}")
+            values.append(value)
+        return (values[0], values[1])
 
     if "date time" not in by_name:
         raise source.error(
@@ -429,7 +466,7 @@ def _environment(
         raise source.error("Date Time: the end is before the start", lines["date time"])
     materials = []
     for index in (1, 2, 3):
-        values = pair(f"mat temp {index}", f"Mat temp {index}")
+        values = pair(f"mat temp {index}", f"Mat temp {index}", RTL_MATERIAL_TEMP_RANGE_C)
         if values is not None and min(values) > UNUSED_SENSOR_C:
             materials.append(values)
     expansion = None
@@ -438,10 +475,12 @@ def _environment(
         if not tokens:
             raise source.error("Exp coeff: expected a value in ppm/°C", lines["exp coeff"])
         expansion = parse_float(tokens[0], source, lines["exp coeff"], "Exp coeff")
+        check_magnitude(expansion, MAX_ABS_EXPANSION_PPM, source, lines["exp coeff"],
+                        "Exp coeff (ppm/°C)")
     environment = Environment(
-        air_temp_c=pair("air temp", "Air temp"),
-        air_pressure_kpa=pair("air press", "Air press"),
-        air_humidity_pct=pair("air humid", "Air humid"),
+        air_temp_c=pair("air temp", "Air temp (°C)", RTL_AIR_TEMP_RANGE_C),
+        air_pressure_kpa=pair("air press", "Air press (kPa)", RTL_PRESSURE_RANGE_KPA),
+        air_humidity_pct=pair("air humid", "Air humid (%RH)", HUMIDITY_RANGE_PCT),
         material_temp_c=tuple(materials),
         expansion_ppm_per_c=expansion,
     )

@@ -2,7 +2,8 @@
 
 One row is one reading. A :class:`ColumnMap` names the columns (by header name, or by 1-based
 number for a file without a header row); :class:`TableFormat` declares the units and how to find
-the data. Only position and deviation are required:
+the data (:mod:`.table_layout` finds the header, splits the fields and matches the names). Only
+position and deviation are required:
 
 - position: the target (nominal position) along the line. Targets in :class:`LineData` are
   relative to the first row's position; rows within ``target_tolerance_mm`` are the same target.
@@ -10,21 +11,29 @@ the data. Only position and deviation are required:
   the travel reverses or a position repeats the previous row's.
 - direction: +1/−1, ``+``/``-``, ``up``/``down``, ``fwd``/``bwd``, ``forward``/``backward``.
   Without it a run's direction is the way its positions go (a one-reading run needs the column).
-- time: seconds (``time_unit``) or ISO 8601 date-times; without it readings are taken 1 s apart in
-  row order (recorded in the metadata as ``time_source``).
-- air_temp, material_temp (°C), pressure (``pressure_unit``), humidity (%RH): optional.
+- time: a number with a unit, or ISO 8601 date-times; without it readings are taken 1 s apart in
+  row order (recorded in the metadata as ``time_source``). Within a run time never goes back.
+- air_temp, material_temp, pressure, humidity (%RH): optional; converted to °C and kPa.
 
-Header names match case-insensitively, ignoring a unit written as ``[mm]``, ``(mm)`` or a
-``_mm`` suffix; such a unit is used when the format does not declare one (and must agree with it
-when it does). A comment line ``# start_time: <ISO 8601>`` sets the time origin of relative times.
+**Units.** Every quantity read has a unit: from the header (``Flat [mm]``, ``(mm)``, a ``_mm``
+suffix) or declared by the format (the plan's ``deviation_unit``, ``pressure_unit``, …, or the
+command line); both given must agree. A deviation, time, temperature or pressure column without a
+unit is refused with a message asking for one. Positions are mm unless the header or
+``position_unit`` says otherwise: that is the plan.toml contract (lengths in mm). A deviation
+column named like an angle (yaw, pitch, roll) or a preamble ``TestType : Angular`` refuses a length
+unit, and ``TestType : Flatness`` (or Linear, Straightness) refuses an angle.
+
+**Values** must be numbers of the strict grammar of :mod:`.source` and lie within the bounds of
+:mod:`.limits` once converted; a line's grid of runs × targets is checked against
+``MAX_READINGS`` before it is allocated. A comment line ``# start_time: <ISO 8601>`` sets the time
+origin of relative times.
 """
 
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -32,73 +41,90 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..measurement import Environment, LineData
-from .source import SourceText, format_time_iso, parse_float
+from .limits import (
+    AIR_TEMP_RANGE_C,
+    HUMIDITY_RANGE_PCT,
+    MATERIAL_TEMP_RANGE_C,
+    MAX_ABS_DEVIATION,
+    MAX_ABS_POSITION_MM,
+    MAX_ABS_TIME_S,
+    MAX_READINGS,
+    MIN_TARGET_SPACING_MM,
+    PRESSURE_RANGE_KPA,
+    size_text,
+)
+from .source import (
+    BLANKS,
+    SourceText,
+    check_magnitude,
+    check_range,
+    format_time_iso,
+    is_number,
+    parse_float,
+    quote,
+)
+from .table_layout import (
+    ANGULAR_NAMES,
+    DESCRIPTION,
+    ENVIRONMENT_COLUMNS,
+    HUMIDITY_UNITS,
+    ColumnMap,
+    Layout,
+    detect_delimiter,
+    find_layout,
+    is_comment,
+    name_key,
+    resolve_columns,
+    row_fits,
+    split_fields,
+    split_unit,
+)
 from .units import (
+    ANGLE_UNITS,
     DEVIATION_FACTOR,
     POSITION_FACTOR,
     PRESSURE_FACTOR_KPA,
+    TEMPERATURE_UNITS,
     TIME_FACTOR,
+    choices,
+    describe,
     normalise_unit,
 )
 
-FloatArray = NDArray[np.float64]
+__all__ = ["ColumnMap", "TableFile", "TableFormat", "cluster_targets", "detect_delimiter",
+           "read_table", "split_fields", "split_unit", "write_table"]
 
-ColumnRef = str | int | None
+FloatArray = NDArray[np.float64]
 
 _DIRECTION_WORDS = {
     "+1": 1, "1": 1, "+": 1, "up": 1, "fwd": 1, "forward": 1, "f": 1, "pos": 1, "positive": 1,
     "-1": -1, "−1": -1, "-": -1, "down": -1, "bwd": -1, "backward": -1, "b": -1, "rev": -1,
     "reverse": -1, "neg": -1, "negative": -1,
 }
-_UNIT_IN_NAME = re.compile(r"^(?P<name>.*?)\s*(?:\[(?P<b>[^\]]*)\]|\((?P<p>[^)]*)\))\s*$")
-
-
-@dataclass(frozen=True)
-class ColumnMap:
-    """Which column holds what: a header name, a 1-based column number, or None.
-
-    None means "the column with the standard name (the field's name) if there is one"; a value
-    given explicitly must exist in the file.
-    """
-
-    position: ColumnRef = None
-    deviation: ColumnRef = None
-    run: ColumnRef = None
-    direction: ColumnRef = None
-    time: ColumnRef = None
-    air_temp: ColumnRef = None
-    material_temp: ColumnRef = None
-    pressure: ColumnRef = None
-    humidity: ColumnRef = None
-
-    @classmethod
-    def from_mapping(cls, mapping: dict[str, object]) -> ColumnMap:
-        """From a plan's ``columns = {position = "X", deviation = 2, ...}``; unknown keys raise
-        ValueError naming them."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(mapping) - known)
-        if unknown:
-            raise ValueError(
-                f"unknown column key(s) {', '.join(unknown)}; use {', '.join(sorted(known))}"
-            )
-        values: dict[str, ColumnRef] = {}
-        for key, value in mapping.items():
-            if isinstance(value, bool) or not isinstance(value, str | int):
-                raise ValueError(f"column {key}: expected a header name or a column number")
-            if isinstance(value, int) and value < 1:
-                raise ValueError(f"column {key}: column numbers start at 1, got {value}")
-            values[key] = value
-        return cls(**values)  # type: ignore[arg-type]
+_REQUIRED = ("position", "deviation")
+_UNIT_TABLES: dict[str, dict[str, object]] = {
+    "position": POSITION_FACTOR,  # type: ignore[dict-item]
+    "deviation": DEVIATION_FACTOR,  # type: ignore[dict-item]
+    "time": TIME_FACTOR,  # type: ignore[dict-item]
+    "pressure": PRESSURE_FACTOR_KPA,  # type: ignore[dict-item]
+    "air_temp": TEMPERATURE_UNITS,  # type: ignore[dict-item]
+    "material_temp": TEMPERATURE_UNITS,  # type: ignore[dict-item]
+}
+_UNIT_OPTION = {"position": "position_unit", "deviation": "deviation_unit", "time": "time_unit",
+                "pressure": "pressure_unit", "air_temp": "temperature_unit",
+                "material_temp": "temperature_unit"}
+_UNIT_FLAG = {"deviation": "--unit", "position": "--position-unit"}
 
 
 @dataclass(frozen=True)
 class TableFormat:
     """How to read a table: its columns, units and where the data start.
 
-    ``deviation_unit`` None means the file does not say (the plan's ``deviation_unit`` applies)
-    unless a header name carries a unit. ``delimiter`` None detects comma, semicolon, tab or
-    whitespace from the first line. ``data_marker`` is a line after which the data start (e.g.
-    ``":START"``); the header is then the last text line before it.
+    A unit None means the format does not declare it: the header must then carry it (positions:
+    mm, the plan contract). ``delimiter`` None detects comma, semicolon, tab or whitespace from the
+    header. ``data_marker`` is a line after which the data start (e.g. ``":START"``).
+    ``environment`` False leaves the environment columns unread unless they are mapped (a
+    command that does not use them need not ask for their units).
     """
 
     columns: ColumnMap = field(default_factory=ColumnMap)
@@ -106,37 +132,38 @@ class TableFormat:
     deviation_unit: str | None = None
     time_unit: str | None = None
     pressure_unit: str | None = None
+    temperature_unit: str | None = None
     delimiter: str | None = None
     data_marker: str | None = None
     comment: str = "#"
     target_tolerance_mm: float = 1e-3
+    environment: bool = True
 
     def __post_init__(self) -> None:
         if not self.comment:
             raise ValueError("comment: the comment prefix cannot be empty")
-        if not self.target_tolerance_mm > 0:
-            raise ValueError("target_tolerance_mm must be positive")
+        if not (math.isfinite(self.target_tolerance_mm)
+                and self.target_tolerance_mm >= MIN_TARGET_SPACING_MM):
+            raise ValueError(f"target_tolerance_mm must be at least {MIN_TARGET_SPACING_MM} mm")
+
+    def declared(self, key: str) -> str | None:
+        option = _UNIT_OPTION.get(key)
+        value = getattr(self, option) if option else None
+        return value if isinstance(value, str) else None
 
 
 @dataclass(frozen=True, eq=False)
 class TableFile:
-    """A table, read: ``data`` in the file's deviation unit ``unit`` (None if not stated)."""
+    """A table, read: ``data`` in the file's deviation unit ``unit`` (temperatures in °C,
+    pressure in kPa, positions in mm); ``units`` the unit of every column read."""
 
     path: Path
     data: LineData
-    unit: str | None
+    unit: str
     columns: dict[str, int]
     header: tuple[str, ...]
     raw: bytes = field(repr=False)
-
-
-@dataclass
-class _Layout:
-    header: tuple[str, ...]
-    header_line: int | None
-    first_data_line: int
-    delimiter: str | None
-    start_time: float | None
+    units: dict[str, str | None] = field(default_factory=dict)
 
 
 def read_table(path: str | Path, table_format: TableFormat | None = None) -> TableFile:
@@ -145,173 +172,109 @@ def read_table(path: str | Path, table_format: TableFormat | None = None) -> Tab
     Raises
     ------
     FormatError
-        Naming the file and line for a missing column, a value that is not a number, a run that
-        goes back on itself, a target read twice in one run, or mixed directions within a run.
+        Naming the file and line for a missing or ambiguous column, a header whose names do not
+        match the rows' fields, a column without a unit, a value that is not a number or not
+        possible, a run that goes back on itself, a target read twice in one run, mixed
+        directions within a run, time going back, or more readings than a line may hold.
     """
     fmt = table_format or TableFormat()
     source = SourceText.read(path)
-    layout = _layout(source, fmt)
-    columns, units = _resolve_columns(source, layout, fmt)
-    rows = _rows(source, layout, fmt, columns)
-    data = _assemble(source, fmt, columns, units, rows, layout)
-    return TableFile(source.path, data, units["deviation"], columns, layout.header, source.raw)
+    layout = find_layout(source, delimiter=fmt.delimiter, data_marker=fmt.data_marker,
+                         comment=fmt.comment)
+    wanted = ("position", "deviation", "run", "direction", "time") + (
+        ENVIRONMENT_COLUMNS if fmt.environment else ())
+    columns, header_units, shown = resolve_columns(source, layout, fmt.columns, wanted, _REQUIRED)
+    units = _units(source, layout, fmt, columns, header_units, shown)
+    rows = _rows(source, layout, fmt, columns, units, shown)
+    data = _assemble(source, fmt, columns, units, rows)
+    return TableFile(source.path, data, units["deviation"] or "", columns, layout.header,
+                     source.raw, units)
 
 
-# ---- layout ------------------------------------------------------------------------------
+# ---- units -------------------------------------------------------------------------------
 
 
-def _is_comment(text: str, fmt: TableFormat) -> bool:
-    stripped = text.strip()
-    return not stripped or stripped.startswith(fmt.comment) or stripped.startswith("//")
-
-
-def split_fields(text: str, delimiter: str | None) -> list[str]:
-    if delimiter is None:
-        return text.split()
-    return [part.strip() for part in text.split(delimiter)]
-
-
-def detect_delimiter(text: str) -> str | None:
-    for candidate in (",", ";", "\t"):
-        if candidate in text:
-            return candidate
-    return None
-
-
-def _numeric(token: str) -> bool:
-    try:
-        float(token.replace(",", "."))
-    except ValueError:
-        return False
-    return True
-
-
-def _layout(source: SourceText, fmt: TableFormat) -> _Layout:
-    start_time = None
-    for number, text in source.numbered():
-        stripped = text.strip()
-        if stripped.startswith(fmt.comment):
-            key, colon, value = stripped[len(fmt.comment):].partition(":")
-            if colon and key.strip().lower() == "start_time":
-                start_time = _iso_time(value.strip(), source, number, "start_time")
-    whitespace = fmt.delimiter is not None and fmt.delimiter.lower() in ("whitespace", "space", " ")
-    fixed = None if whitespace else fmt.delimiter
-    if fmt.data_marker is not None:
-        marker = next(
-            (n for n, text in source.numbered() if text.strip() == fmt.data_marker), None
-        )
-        if marker is None:
-            raise source.error(
-                f"the data marker line {fmt.data_marker!r} was not found", source.last_line
-            )
-        header_line = next(
-            (n for n in range(marker - 1, 0, -1) if not _is_comment(source.lines[n - 1], fmt)),
-            None,
-        )
-        first_data = marker + 1
-        probe = source.lines[header_line - 1] if header_line else ""
-        delimiter = fixed if (whitespace or fixed) else detect_delimiter(probe)
-    else:
-        first = next((n for n, text in source.numbered() if not _is_comment(text, fmt)), None)
-        if first is None:
-            raise source.error("the file holds no data rows", source.last_line)
-        delimiter = fixed if (whitespace or fixed) else detect_delimiter(source.lines[first - 1])
-        tokens = split_fields(source.lines[first - 1], delimiter)
-        if all(_numeric(t) for t in tokens if t):
-            header_line, first_data = None, first
-        else:
-            header_line, first_data = first, first + 1
-    header: tuple[str, ...] = ()
-    if header_line is not None:
-        header = tuple(split_fields(source.lines[header_line - 1], delimiter))
-    return _Layout(header, header_line, first_data, delimiter, start_time)
-
-
-def _split_unit(name: str) -> tuple[str, str | None]:
-    """``"Position [mm]"`` → ("position", "mm"); ``"deviation_um"`` → ("deviation", "um")."""
-    text = name.strip()
-    match = _UNIT_IN_NAME.match(text)
-    if match:
-        return _plain(match.group("name")), normalise_unit(match.group("b") or match.group("p"))
-    plain = _plain(text)
-    base, _, suffix = plain.rpartition("_")
-    if base and suffix in _KNOWN_SUFFIXES:
-        return base, normalise_unit(suffix)
-    return plain, None
-
-
-def _plain(name: str) -> str:
-    return "_".join(name.strip().lower().split())
-
-
-_KNOWN_SUFFIXES = (
-    set(DEVIATION_FACTOR) | set(POSITION_FACTOR) | set(TIME_FACTOR) | set(PRESSURE_FACTOR_KPA)
-    | {"c", "pct"}
-)
-_REQUIRED = ("position", "deviation")
-
-
-def _resolve_columns(
-    source: SourceText, layout: _Layout, fmt: TableFormat
-) -> tuple[dict[str, int], dict[str, str | None]]:
-    """0-based indexes of the mapped columns and the unit of each (declared or from the header)."""
-    names = [_split_unit(h) for h in layout.header]
+def _units(
+    source: SourceText, layout: Layout, fmt: TableFormat, columns: dict[str, int],
+    header_units: dict[str, str | None], shown: dict[str, str],
+) -> dict[str, str | None]:
+    """The unit of every column read: declared and header units agree; a missing one is an
+    error asking for it (positions: mm by the plan contract; times: checked per value, since
+    ISO date-times need none)."""
     where = layout.header_line or layout.first_data_line
-    columns: dict[str, int] = {}
-    header_units: dict[str, str | None] = {}
-    for f in fields(ColumnMap):
-        ref = getattr(fmt.columns, f.name)
-        if isinstance(ref, int):
-            if layout.header and ref > len(layout.header):
-                raise source.error(
-                    f"column {f.name} = {ref}, but the header has {len(layout.header)} columns",
-                    where,
-                )
-            columns[f.name] = ref - 1
-            header_units[f.name] = names[ref - 1][1] if names else None
-            continue
-        wanted = _plain(ref) if isinstance(ref, str) else f.name
-        found = [i for i, h in enumerate(layout.header) if _plain(h) == wanted]
-        if not found:
-            found = [i for i, (plain, _) in enumerate(names) if plain == wanted]
-        if found:
-            columns[f.name] = found[0]
-            header_units[f.name] = names[found[0]][1]
-        elif ref is not None or f.name in _REQUIRED:
-            if not layout.header:
-                raise source.error(
-                    f"the file has no header row: map the {f.name} column by number "
-                    f"(e.g. columns = {{ {f.name} = 2 }})",
-                    where,
-                )
-            raise source.error(
-                f"no {f.name} column named {ref or f.name!r}; the header has "
-                f"{', '.join(repr(h) for h in layout.header)}",
-                where,
-            )
-    declared = {
-        "position": fmt.position_unit,
-        "deviation": fmt.deviation_unit,
-        "time": fmt.time_unit,
-        "pressure": fmt.pressure_unit,
-    }
     units: dict[str, str | None] = {}
-    for key, unit in declared.items():
+    for key in columns:
         from_header = header_units.get(key)
-        if unit is not None and from_header is not None and normalise_unit(unit) != from_header:
+        declared_raw = fmt.declared(key)
+        declared = normalise_unit(declared_raw) if declared_raw is not None else None
+        if key == "humidity":
+            if from_header is not None and from_header not in HUMIDITY_UNITS:
+                raise source.error(f"humidity column {shown[key]}: unit {from_header!r} is not "
+                                   "%RH", where)
+            continue
+        if key not in _UNIT_TABLES:
+            continue
+        if declared is not None and from_header is not None and declared != from_header:
             raise source.error(
-                f"the {key} unit is declared as {unit!r} but the header says {from_header!r}",
+                f"the {DESCRIPTION[key]} unit is declared as {declared_raw!r} "
+                f"({_UNIT_OPTION[key]}) but the header {shown[key]} says "
+                f"{describe(from_header)!r}; correct one of them",
                 where,
             )
-        units[key] = normalise_unit(unit) if unit is not None else from_header
-    tables = {"position": POSITION_FACTOR, "deviation": DEVIATION_FACTOR, "time": TIME_FACTOR,
-              "pressure": PRESSURE_FACTOR_KPA}
-    for key, unit in units.items():
-        if unit is not None and unit not in tables[key]:
+        unit = declared or from_header
+        if unit is None and key == "position":
+            unit = "mm"
+        if unit is not None and unit not in _UNIT_TABLES[key]:
             raise source.error(
-                f"{key} unit {unit!r} is not supported; use one of {', '.join(tables[key])}", where
-            )
-    return columns, units
+                f"{DESCRIPTION[key]} unit {unit!r} of column {shown[key]} is not supported; use "
+                f"one of {choices(tuple(_UNIT_TABLES[key]))}", where)
+        if unit is None and key != "time":
+            raise source.error(_missing_unit(key, shown[key]), where)
+        units[key] = unit
+    _check_kind(source, layout, units.get("deviation"), shown, columns)
+    return units
+
+
+def _missing_unit(key: str, column: str) -> str:
+    examples = {
+        "deviation": "um, nm, mm or inch for lengths; urad, mrad, arcsec or deg for angles",
+        "time": "s, ms, min or h",
+        "pressure": "Pa, hPa, mbar, kPa, mmHg or inHg",
+        "air_temp": "C, F or K",
+        "material_temp": "C, F or K",
+    }[key]
+    flag = f", {_UNIT_FLAG[key]} on the command line" if key in _UNIT_FLAG else ""
+    return (f"the {DESCRIPTION[key]} column {column} has no unit and volucal does not assume "
+            f"one: give {_UNIT_OPTION[key]} ({examples}) in the plan's [[line]]{flag}, or write "
+            f"it in the header, e.g. '{column.strip(chr(39))} [unit]'")
+
+
+def _check_kind(source: SourceText, layout: Layout, unit: str | None, shown: dict[str, str],
+                columns: dict[str, int]) -> None:
+    """Refuse an angular file read with a length unit, and a length file with an angle unit."""
+    if unit is None:
+        return
+    angle_unit = unit in ANGLE_UNITS
+    name = layout.header[columns["deviation"]] if layout.header else ""
+    base = name_key(split_unit(name)[0]) if name else ""
+    if not angle_unit and any(base.startswith(word) for word in ANGULAR_NAMES):
+        raise source.error(
+            f"the deviation column {shown['deviation']} holds an angle, but its unit is "
+            f"{describe(unit)} (a length): give its angular unit (urad, mrad, arcsec or deg) and "
+            "read it as an angular line",
+            layout.header_line or layout.first_data_line,
+        )
+    if layout.kind is not None:
+        kind, line = layout.kind
+        if kind == "angle" and not angle_unit:
+            raise source.error(
+                f"line {line} says this is an angular measurement, but the deviation unit is "
+                f"{describe(unit)} (a length): give its angular unit (urad, mrad, arcsec or deg) "
+                "and read it as an angular line", line)
+        if kind == "length" and angle_unit:
+            raise source.error(
+                f"line {line} says this is a length measurement, but the deviation unit is "
+                f"{describe(unit)} (an angle): give its length unit (um, nm, mm or inch)", line)
 
 
 # ---- rows --------------------------------------------------------------------------------
@@ -321,37 +284,57 @@ def _resolve_columns(
 class _Rows:
     lines: list[int] = field(default_factory=list)
     values: dict[str, list[float]] = field(default_factory=dict)
-    absolute_time: bool = False
+    absolute_time: bool | None = None
     run: list[str] = field(default_factory=list)
     direction: list[int] = field(default_factory=list)
 
 
 def _iso_time(token: str, source: SourceText, line: int, what: str) -> float:
+    text = token.strip(BLANKS)
     try:
-        moment = datetime.fromisoformat(token.strip().replace("Z", "+00:00"))
-    except ValueError:
+        if not text.isascii():
+            raise ValueError
+        moment = datetime.fromisoformat(text.replace("Z", "+00:00"))
+        if moment.tzinfo is None:
+            moment = moment.replace(tzinfo=UTC)
+        return moment.timestamp()
+    except (ValueError, OverflowError, OSError):
         raise source.error(
-            f"{what}: expected a number or an ISO 8601 date-time, found {token!r}", line
+            f"{what}: expected a number or an ISO 8601 date-time, found {quote(token)}", line
         ) from None
-    if moment.tzinfo is None:
-        moment = moment.replace(tzinfo=UTC)
-    return moment.timestamp()
+
+
+def _start_time(source: SourceText, fmt: TableFormat) -> float | None:
+    start = None
+    for number, text in source.numbered():
+        stripped = text.strip(BLANKS)
+        if stripped.startswith(fmt.comment):
+            key, colon, value = stripped[len(fmt.comment):].partition(":")
+            if colon and key.strip(BLANKS).lower() == "start_time":
+                start = _iso_time(value, source, number, "start_time")
+    return start
 
 
 def _rows(
-    source: SourceText, layout: _Layout, fmt: TableFormat, columns: dict[str, int]
+    source: SourceText, layout: Layout, fmt: TableFormat, columns: dict[str, int],
+    units: dict[str, str | None], shown: dict[str, str],
 ) -> _Rows:
     rows = _Rows(values={k: [] for k in columns if k not in ("run", "direction")})
     decimal_comma = layout.delimiter == ";"
+    deviation_factor = DEVIATION_FACTOR[units["deviation"] or "um"]
+    position_factor = POSITION_FACTOR[units["position"] or "mm"]
     needed = max(columns.values()) + 1
     for number in range(layout.first_data_line, len(source.lines) + 1):
         text = source.lines[number - 1]
-        if _is_comment(text, fmt):
+        if is_comment(text, fmt.comment):
             continue
         tokens = split_fields(text, layout.delimiter)
-        if len(tokens) < needed:
+        if not row_fits(layout, len(tokens), needed):
+            against = (f"the header (line {layout.header_line})" if layout.header_line
+                       else f"the first row (line {layout.first_data_line})")
             raise source.error(
-                f"expected at least {needed} fields, found {len(tokens)}", number
+                f"expected {layout.field_count} fields as in {against}, found {len(tokens)}",
+                number,
             )
         rows.lines.append(number)
         for key, index in columns.items():
@@ -359,22 +342,68 @@ def _rows(
             if decimal_comma:
                 token = token.replace(",", ".")
             if key == "run":
-                rows.run.append(token.strip())
+                rows.run.append(token.strip(BLANKS))
             elif key == "direction":
-                word = token.strip().lower()
+                word = token.strip(BLANKS).lower()
                 if word not in _DIRECTION_WORDS:
                     raise source.error(
-                        f"direction: expected +1/-1, up/down or fwd/bwd, found {token!r}", number
-                    )
+                        f"direction: expected +1/-1, up/down or fwd/bwd, found {quote(token)}",
+                        number)
                 rows.direction.append(_DIRECTION_WORDS[word])
-            elif key == "time" and not _numeric(token):
-                rows.values[key].append(_iso_time(token, source, number, "time"))
-                rows.absolute_time = True
+            elif key == "time":
+                rows.values[key].append(_time_value(token, source, number, rows, units, shown))
             else:
-                rows.values[key].append(parse_float(token, source, number, key))
+                value = parse_float(token, source, number, DESCRIPTION[key])
+                rows.values[key].append(_convert(key, value, source, number, units,
+                                                 deviation_factor, position_factor))
     if not rows.lines:
         raise source.error("the file holds no data rows", source.last_line)
     return rows
+
+
+def _time_value(token: str, source: SourceText, number: int, rows: _Rows,
+                units: dict[str, str | None], shown: dict[str, str]) -> float:
+    absolute = not is_number(token)
+    if rows.absolute_time is not None and absolute != rows.absolute_time:
+        raise source.error("time: the column mixes numbers and date-times", number)
+    rows.absolute_time = absolute
+    if absolute:
+        return _iso_time(token, source, number, "time")
+    if units.get("time") is None:
+        raise source.error(_missing_unit("time", shown["time"]), number)
+    value = parse_float(token, source, number, "time") * TIME_FACTOR[units["time"] or "s"]
+    return check_magnitude(value, MAX_ABS_TIME_S, source, number, "time (s)")
+
+
+def _convert(key: str, value: float, source: SourceText, number: int,
+             units: dict[str, str | None], deviation_factor: float,
+             position_factor: float) -> float:
+    """A row's value in volucal's unit (deviations stay in the file's unit), checked."""
+    unit = units.get(key)
+    if key == "position":
+        return check_magnitude(value * position_factor, MAX_ABS_POSITION_MM, source, number,
+                               "position (mm)")
+    if key == "deviation":
+        check_magnitude(value * deviation_factor, MAX_ABS_DEVIATION, source, number,
+                        f"deviation ({'µrad' if unit in ANGLE_UNITS else 'µm'})")
+        return value
+    if key in ("air_temp", "material_temp"):
+        factor, offset = TEMPERATURE_UNITS[unit or "c"]
+        celsius = value * factor + offset
+        low, high = AIR_TEMP_RANGE_C if key == "air_temp" else MATERIAL_TEMP_RANGE_C
+        return check_range(celsius, low, high, source, number, f"{DESCRIPTION[key]} (°C)",
+                           f"check temperature_unit (read as {describe(unit or 'c')})")
+    if key == "pressure":
+        kpa = value * PRESSURE_FACTOR_KPA[unit or "kpa"]
+        return check_range(kpa, *PRESSURE_RANGE_KPA, source, number, "air pressure (kPa)",
+                           f"{value:g} {describe(unit or 'kpa')} cannot be air pressure; check "
+                           "pressure_unit (mmHg? hPa?)")
+    if key == "humidity":
+        return check_range(value, *HUMIDITY_RANGE_PCT, source, number, "humidity (%RH)")
+    return value
+
+
+# ---- assembly ----------------------------------------------------------------------------
 
 
 def _assemble(
@@ -383,36 +412,42 @@ def _assemble(
     columns: dict[str, int],
     units: dict[str, str | None],
     rows: _Rows,
-    layout: _Layout,
 ) -> LineData:
     count = len(rows.lines)
-    position = np.asarray(rows.values["position"]) * POSITION_FACTOR[units["position"] or "mm"]
+    position = np.asarray(rows.values["position"])
     relative = position - position[0]
     run_index = _runs(rows, relative)
     targets, target_index = cluster_targets(relative, fmt.target_tolerance_mm)
     runs = int(run_index.max()) + 1
-    occupied = np.zeros((runs, len(targets)), dtype=np.int64)
+    cells = runs * len(targets)
+    if cells > MAX_READINGS:
+        raise source.error(
+            f"{size_text(count)} rows make {size_text(runs)} runs × {size_text(len(targets))} "
+            f"targets = {size_text(cells)} readings, beyond the {size_text(MAX_READINGS)} a line "
+            "may hold (docs/formats.md, Limits): check the run column and the positions",
+            rows.lines[-1],
+        )
+    first_line = np.zeros((runs, len(targets)), dtype=np.int64)
     for row, (r, k) in enumerate(zip(run_index, target_index, strict=True)):
-        if occupied[r, k]:
+        if first_line[r, k]:
             raise source.error(
                 f"target {targets[k]:g} mm is read twice in one run (first at line "
-                f"{occupied[r, k]}); add a run column or check the positions",
+                f"{first_line[r, k]}); add a run column or check the positions",
                 rows.lines[row],
             )
-        occupied[r, k] = rows.lines[row]
+        first_line[r, k] = rows.lines[row]
     direction = _directions(source, rows, run_index, relative, runs)
 
     time_source = "time column"
-    start_time = layout.start_time or 0.0
+    start_time = _start_time(source, fmt)
     if "time" in columns:
-        raw_time = np.asarray(rows.values["time"])
+        times_flat = np.asarray(rows.values["time"])
         if rows.absolute_time:
             # date-times are absolute: the origin is the start_time comment or the first row
-            if layout.start_time is None:
-                start_time = float(raw_time[0])
-            times_flat = raw_time - start_time
-        else:
-            times_flat = raw_time * TIME_FACTOR[units["time"] or "s"]
+            if start_time is None:
+                start_time = float(times_flat[0])
+            times_flat = times_flat - start_time
+        _check_time_order(source, rows, run_index, times_flat)
     else:
         time_source = "row order (no time column): readings 1 s apart"
         times_flat = np.arange(count, dtype=float)
@@ -425,31 +460,48 @@ def _assemble(
     air = grid(rows.values["air_temp"]) if "air_temp" in columns else None
     material = grid(rows.values["material_temp"]) if "material_temp" in columns else None
 
-    def ends(key: str, factor: float = 1.0) -> tuple[float, float] | None:
+    def ends(key: str) -> tuple[float, float] | None:
         if key not in columns:
             return None
         values = rows.values[key]
-        return (values[0] * factor, values[-1] * factor)
+        return (values[0], values[-1])
 
-    pressure_factor = PRESSURE_FACTOR_KPA[units["pressure"] or "kpa"]
     material_ends = ends("material_temp")
     environment = Environment(
         air_temp_c=ends("air_temp"),
-        air_pressure_kpa=ends("pressure", pressure_factor),
+        air_pressure_kpa=ends("pressure"),
         air_humidity_pct=ends("humidity"),
         material_temp_c=(material_ends,) if material_ends else (),
     )
+    metadata = {"time_source": time_source}
+    if "pressure" in columns:
+        metadata["pressure_unit_in_file"] = describe(units.get("pressure") or "kpa")
+    for key in ("air_temp", "material_temp"):
+        if key in columns:
+            metadata["temperature_unit_in_file"] = describe(units.get(key) or "c")
     return LineData(
         targets_mm=targets,
         deviations=grid(rows.values["deviation"]),
         run_direction=direction,
         times_s=grid(times_flat),
-        start_time=start_time,
+        start_time=start_time or 0.0,
         environment=environment,
         air_temp_c=air,
         material_temp_c=material,
-        metadata={"time_source": time_source},
+        metadata=metadata,
     )
+
+
+def _check_time_order(source: SourceText, rows: _Rows, run_index: NDArray[np.int64],
+                      times: FloatArray) -> None:
+    """Within a run, readings follow each other in time: a time that goes back is refused."""
+    order = np.argsort(run_index, kind="stable")
+    same_run = run_index[order][1:] == run_index[order][:-1]
+    back = np.flatnonzero(same_run & (np.diff(times[order]) < 0))
+    if back.size:
+        row = int(order[back[0] + 1])
+        raise source.error("time goes back within a run here (readings of a run follow each "
+                           "other); check the time column", rows.lines[row])
 
 
 def cluster_targets(
@@ -473,16 +525,18 @@ def _runs(rows: _Rows, relative: FloatArray) -> NDArray[np.int64]:
     if rows.run:
         ids: dict[str, int] = {}
         return np.array([ids.setdefault(r, len(ids)) for r in rows.run], dtype=np.int64)
+    steps = np.diff(relative)
+    sign = np.sign(steps)
     index = np.zeros(len(relative), dtype=np.int64)
     run = 0
     trend = 0.0
     for row in range(1, len(relative)):
-        step = relative[row] - relative[row - 1]
-        if step == 0 or (trend and math.copysign(1.0, step) != trend):
+        step_sign = sign[row - 1]
+        if step_sign == 0 or (trend and step_sign != trend):
             run += 1
             trend = 0.0
         else:
-            trend = math.copysign(1.0, step)
+            trend = step_sign
         index[row] = run
     return index
 
@@ -495,8 +549,10 @@ def _directions(
     runs: int,
 ) -> NDArray[np.int64]:
     direction = np.zeros(runs, dtype=np.int64)
+    order = np.argsort(run_index, kind="stable")
+    bounds = np.searchsorted(run_index[order], np.arange(runs + 1))
     for run in range(runs):
-        members = np.flatnonzero(run_index == run)
+        members = order[bounds[run]:bounds[run + 1]]
         first_line = rows.lines[members[0]]
         if rows.direction:
             values = {rows.direction[m] for m in members}

@@ -108,7 +108,7 @@ def test_binning_a_time_series():
 def binary_file(tmp_path, count_text="3", payload=None, tail=b"\nEOF::\n") -> Path:
     values = np.arange(6, dtype="<f8") if payload is None else payload
     head = f"HEADER::\nSample rate: 10\nSample count: {count_text}\n" \
-           "Channels: position_mm deviation\nData:\n"
+           "Channels: position_mm deviation\nUnits: um\nData:\n"
     path = tmp_path / "bad.rtx"
     path.write_bytes(head.encode() + values.tobytes() + tail)
     return path
@@ -117,10 +117,10 @@ def binary_file(tmp_path, count_text="3", payload=None, tail=b"\nEOF::\n") -> Pa
 @pytest.mark.parametrize(
     "kwargs, match, line",
     [
-        ({"count_text": "4"}, "cut short or damaged", 5),
-        ({"tail": b""}, "no EOF::", 5),
-        ({"count_text": "x"}, "Sample count: expected a number", 3),
-        ({"payload": np.array([0, 1, np.inf, 3, 4, 5], dtype="<f8")}, "sample 2", 5),
+        ({"count_text": "4"}, "cut short or damaged", 6),
+        ({"tail": b""}, "no EOF::", 6),
+        ({"count_text": "x"}, "Sample count: expected a whole number", 3),
+        ({"payload": np.array([0, 1, np.inf, 3, 4, 5], dtype="<f8")}, "sample 2", 6),
     ],
 )
 def test_bad_binary(tmp_path, kwargs, match, line):
@@ -142,7 +142,75 @@ def test_bad_csv_line_is_found_in_a_later_chunk(tmp_path):
 
 def test_csv_capture_needs_times(tmp_path):
     path = tmp_path / "c.csv"
-    path.write_text("deviation\n1\n2\n")
+    path.write_text("deviation_um\n1\n2\n")
     with pytest.raises(FormatError, match="time column or a sample rate") as info:
         read_capture(path)
     assert info.value.line == 1
+
+
+# ---- sizes and values: refused before anything is allocated ---------------------------------
+
+
+def test_one_byte_short_is_refused(tmp_path):
+    """The newline before EOF:: must not be read as data (it was: later values 1.3e294 µm)."""
+    path = binary_file(tmp_path)
+    raw = path.read_bytes()
+    cut = raw.index(b"Data:\n") + len(b"Data:\n")
+    path.write_bytes(raw[:cut] + raw[cut + 1:])  # one byte of the block lost
+    with pytest.raises(FormatError, match="no EOF:: right after them") as info:
+        read_capture(path)
+    assert info.value.line == 6
+
+
+def test_a_header_claiming_more_than_the_file_holds(tmp_path):
+    for count in ("4", "100000000", "200000000"):
+        path = binary_file(tmp_path, count_text=count)
+        with pytest.raises(FormatError, match="cut short or damaged"):
+            read_capture(path)
+    path = binary_file(tmp_path, count_text="1000000000000")
+    with pytest.raises(FormatError, match="Sample count 1000000000000 is outside"):
+        read_capture(path)
+
+
+def test_a_tiny_capture_spanning_a_kilometre_is_refused(tmp_path):
+    """144 bytes, positions 0 and 1e9 mm: binned at 0.1 mm it asked for 7.45 GiB."""
+    path = binary_file(tmp_path, count_text="3",
+                       payload=np.array([0, 1, 1e9, 2, 0, 3], dtype="<f8"))
+    with pytest.raises(FormatError, match=r"sample 2: position \(mm\) 1e\+09 is beyond"):
+        read_capture(path)
+    wide = binary_file(tmp_path, count_text="3",
+                       payload=np.array([0, 1, 9e5, 2, 0, 3], dtype="<f8"))
+    with pytest.raises(ValueError, match="more than the 100,000 targets"):
+        capture_line_data(read_capture(wide), step_mm=0.1)
+
+
+def test_values_no_laser_produces_in_captures(tmp_path):
+    path = binary_file(tmp_path, payload=np.array([0, 1, 1, 1e300, 2, 0], dtype="<f8"))
+    with pytest.raises(FormatError, match="sample 2: deviation"):
+        read_capture(path)
+    csv = tmp_path / "c.csv"
+    csv.write_text("time_s,deviation_um\n0,1\n1,2\n0.5,3\n")
+    with pytest.raises(FormatError, match="time goes back") as info:
+        read_capture(csv)
+    assert info.value.line == 4
+    csv.write_text("time_s,deviation_um\n0,1\n1,2\n# a comment\n2,1e300\n")
+    with pytest.raises(FormatError, match="deviation") as info:
+        read_capture(csv)
+    assert info.value.line == 5
+    csv.write_text("time_s,deviation_um\n0,1\n1,\u00a02\n")
+    with pytest.raises(FormatError, match="expected a number") as info:
+        read_capture(csv)
+    assert info.value.line == 3
+    csv.write_text("time_s,deviation\n0,1\n1,2\n")
+    with pytest.raises(FormatError, match="'deviation' has no unit"):
+        read_capture(csv)
+
+
+def test_binary_unit_must_agree_with_the_plan(tmp_path):
+    path = binary_file(tmp_path)
+    with pytest.raises(FormatError, match="Units: is 'um' but the deviation unit given is 'nm'"):
+        read_capture(path, TableFormat(deviation_unit="nm"))
+    path.write_bytes(path.read_bytes().replace(b"Units: um\n", b""))
+    with pytest.raises(FormatError, match="no 'Units:' line"):
+        read_capture(path)
+    assert read_capture(path, TableFormat(deviation_unit="nm")).unit == "nm"

@@ -1,7 +1,11 @@
 """The ``import`` and ``iso230-2`` commands through ``volucal.core.cli.main``."""
 
 import json
+import re
 import shutil
+import subprocess
+import sys
+import unicodedata
 from pathlib import Path
 
 import numpy as np
@@ -110,7 +114,18 @@ def test_iso230_2_straightness_of_a_vendor_file(realdata, capsys):
                  "--unit", "mm", "--data-marker", ":START", "--straightness", "--json"]) == 0
     entry = json.loads(capsys.readouterr().out)["lines"][0]
     assert round(entry["straightness_ls_um"], 3) == 1.444
+    assert round(entry["straightness_mz_um"], 3) == 1.418
     assert round(entry["straightness_ep_um"], 3) == 1.512
+    values = entry["straightness"]
+    assert values["least_squares_um"] == entry["straightness_ls_um"]
+    assert values["minimum_zone_um"] == entry["straightness_mz_um"]
+    assert values["methods"]["minimum_zone"] == "minimum zone (ISO 230-1)"
+    assert main(["iso230-2", str(path), "--columns", "deviation=Flat", "--unit", "mm",
+                 "--data-marker", ":START", "--straightness"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"least-squares reference line \(ISO 230-1\)\s+1\.444", out)
+    assert re.search(r"minimum zone \(ISO 230-1\)\s+1\.418", out)
+    assert "note: deviations converted from mm" in out
 
 
 def test_iso230_2_bad_file_is_one_line(tmp_path, capsys):
@@ -119,3 +134,100 @@ def test_iso230_2_bad_file_is_one_line(tmp_path, capsys):
     assert main(["iso230-2", str(path)]) == 1
     err = capsys.readouterr().err
     assert f"{path}, line 1:" in err and err.count("\n") == 1
+
+
+def test_iso230_2_straightness_lines_of_a_plan_always_get_both_methods(plan, capsys):
+    assert main(["iso230-2", str(plan), "--json"]) == 0
+    lines = {entry["name"]: entry for entry in json.loads(capsys.readouterr().out)["lines"]}
+    straight = lines["y_straightness_x"]["straightness"]
+    assert straight["minimum_zone_um"] <= straight["least_squares_um"]
+    assert "straightness" not in lines["x_y0_z0"]  # a linear line, no --straightness
+
+
+def test_iso230_2_refuses_a_table_without_a_unit(realdata, capsys):
+    """Yaw/pitch/roll columns without a unit were read as µm and labelled linear."""
+    path = realdata / "aerotech_flatness_angular" / "643630-1-1-X-test_Angular.dat"
+    args = ["iso230-2", str(path), "--data-marker", ":START", "--columns", "deviation=Yaw"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'Yaw' has no unit" in err and "--unit" in err
+    assert main([*args, "--unit", "um"]) == 1
+    assert "holds an angle" in capsys.readouterr().err
+    assert main([*args, "--unit", "arcsec", "--json"]) == 0
+    entry = json.loads(capsys.readouterr().out)["lines"][0]
+    assert entry["quantity"] == "angular" and "E_up_urad" in entry
+
+
+def test_iso230_2_excludes_and_lists_outliers(realdata, capsys):
+    """Cycle 1 of the ESS mcu1025 file reads +114 µm at the first target (46 σ)."""
+    path = realdata / "psi_ecmc_iso230_2" / "ess_mcu1025_fat_sat_report.md_ISO230.dat"
+    assert main(["iso230-2", str(path), "--json"]) == 0
+    kept = json.loads(capsys.readouterr().out)["lines"][0]
+    assert main(["iso230-2", str(path), "--json", "--exclude-outliers"]) == 0
+    cleaned = json.loads(capsys.readouterr().out)["lines"][0]
+    excluded = cleaned["excluded"]
+    assert {(flag["run"], flag["target"]) for flag in excluded} >= {(1, 1), (1, 2)}
+    first = next(flag for flag in excluded if (flag["run"], flag["target"]) == (1, 1))
+    assert first["statistic"] > 40
+    assert cleaned["A_up_um"] < kept["A_up_um"] - 100  # the +114 µm reading no longer counts
+    assert main(["iso230-2", str(path), "--exclude-outliers"]) == 0
+    out = capsys.readouterr().out
+    assert f"excluded as outliers (--exclude-outliers), {len(excluded)}:" in out
+    assert "run 1 (forward)" in out
+    assert main(["iso230-2", str(DATA / "x_axis_hand.rtl"), "--exclude-outliers"]) == 0
+    assert "excluded as outliers (--exclude-outliers): none" in capsys.readouterr().out
+
+
+def test_iso230_2_columns_stay_apart_for_large_values(tmp_path, capsys):
+    path = tmp_path / "big.csv"
+    rows = [f"{r},{d},{t * 100},{123456.789 * (1 + t) * (-1) ** r + r}"
+            for r, d in ((1, "+1"), (2, "-1"), (3, "+1"), (4, "-1")) for t in range(3)]
+    path.write_text("run,direction,position_mm,deviation_um\n" + "\n".join(rows) + "\n")
+    assert main(["iso230-2", str(path)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    start = next(i for i, line in enumerate(out) if "target mm" in line)
+    table = out[start:]
+    assert len(table) == 4
+    for line in table:  # every cell two spaces from the next: 8 columns, whatever the width
+        assert len(re.split(r"\s{2,}", line.strip())) == 8, line
+    # right-aligned columns end together (the bar of x̄ takes no column on a terminal)
+    right = {sum(not unicodedata.combining(c) for c in line) for line in table}
+    assert len(right) == 1
+    summary = out[1:8]
+    assert all(len(re.split(r"\s{2,}", line.strip())) >= 2 for line in summary)
+
+
+def test_iso230_2_refuses_devices_in_one_line(capsys):
+    assert main(["iso230-2", "/dev/zero"]) == 1
+    err = capsys.readouterr().err
+    assert err == "volucal: error: /dev/zero: is a device, not a measurement file\n"
+
+
+def test_a_closed_pipe_ends_quietly(tmp_path):
+    """``volucal iso230-2 --json F | head -1``: no BrokenPipeError traceback."""
+    files = [str(DATA / "x_axis_hand.rtl")] * 200  # far more than a pipe buffer holds
+    command = [sys.executable, "-m", "volucal.core.cli", "iso230-2", "--json", *files]
+    producer = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert producer.stdout is not None and producer.stderr is not None
+    first = producer.stdout.readline()
+    producer.stdout.close()  # what head -1 does after its line
+    err = producer.stderr.read()
+    assert producer.wait(timeout=120) == 141
+    assert first == b"{\n" and err == b""
+
+
+def test_import_reads_outside_the_plan_folder_only_when_allowed(tmp_path, capsys):
+    folder = tmp_path / "plans"
+    folder.mkdir()
+    shutil.copy(DATA / "x_axis_hand.rtl", tmp_path / "x.rtl")
+    plan = folder / "plan.toml"
+    plan.write_text('[machine]\nstroke = { X = [0, 400], Y = [0, 400], Z = [0, 400] }\n\n'
+                    '[[line]]\nfile = "../x.rtl"\nquantity = "linear"\nstart = [0, 0, 0]\n'
+                    "direction = [1, 0, 0]\n")
+    project = tmp_path / "p.h5"
+    assert main(["import", str(project), str(plan)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "outside the plan's folder" in err and "line 5" in err
+    assert not project.exists()
+    assert main(["import", str(project), str(plan), "--files-root", str(tmp_path)]) == 0
+    assert "1 line(s), 20 readings" in capsys.readouterr().out

@@ -76,13 +76,24 @@ def test_round_trip(tmp_path):
         ("CYCLES=0\nTGT_DATA[1]=1\n", "out of range", 1),
         ("# unit: um\ntarget_mm up_1 down_1\n0 1 2\n5 1\n", "expected 3 fields", 4),
         ("target_mm up_1 sideways_1\n0 1 2\n", "not understood", 1),
-        ("target_mm up_1\n0 x\n", "expected a number", 2),
+        ("# unit: um\ntarget_mm up_1\n0 x\n", "expected a number", 3),
         ("# unit: parsec\ntarget_mm up_1\n0 1\n", "not supported", 1),
+        # no unit: never assumed; values a laser cannot produce; loose numbers; spacing 0
+        ("target_mm up_1\n0 1\n", "does not state its deviation unit", 1),
+        ("# unit: mm\ntarget_mm up_1\n0 1e300\n", "beyond ±1e\\+06", 3),
+        ("# unit: um\ntarget_mm up_1\n1e308 1\n", "beyond", 3),
+        ("# unit: um\ntarget_mm up_1\n0 1\n1_000 2\n", "expected a number", 4),
+        ("# unit: um\ntarget_mm up_1\n0 1\n0.00001 2\n", "at least 0.0001 mm apart", 3),
+        ("TGT_DATA[1]=1e308\nREF_DATA_FWD[1,1]=1\n", "beyond", 1),
+        ("TGT_DATA[1]=1\nREF_DATA_FWD[1,1]=1e307\n", "beyond", 2),
+        ("TGT_DATA[\u0661]=1\nREF_DATA_FWD[1,1]=1\n", "expected a whole number", 1),
+        ("CYCLES=5000\nPOSITIONS=100000\nTGT_DATA[1]=1\nREF_DATA_FWD[1,1]=1\n",
+         "beyond the 2,000,000 readings", 2),
     ],
 )
 def test_bad_tables(tmp_path, text, match, line):
     path = tmp_path / "bad.dat"
-    path.write_text(text)
+    path.write_text(text, encoding="utf-8")
     with pytest.raises(FormatError, match=match) as info:
         read_iso_table(path)
     assert info.value.line == line and info.value.path == str(path)

@@ -1,6 +1,7 @@
 """plan.toml: reading, validation messages that name entry, field and line, writing, and the
 import of every line into a Measurement."""
 
+import os
 import shutil
 from pathlib import Path
 
@@ -46,7 +47,10 @@ def test_write_plan_round_trip(tmp_path):
     write_plan(tmp_path / "sub" / "written.toml", plan)
     text = (tmp_path / "sub" / "written.toml").read_text()
     assert 'file = "../x_axis_hand.rtl"' in text  # relative to the written plan's folder
-    back = load_plan(tmp_path / "sub" / "written.toml")
+    # outside the plan's folder: read only with the user's explicit permission
+    with pytest.raises(FormatError, match="outside the plan's folder"):
+        load_plan(tmp_path / "sub" / "written.toml")
+    back = load_plan(tmp_path / "sub" / "written.toml", files_root=tmp_path)
     folder = tmp_path / "sub"
     assert back.machine == plan.machine
     assert back.uncertainty == plan.uncertainty
@@ -232,3 +236,189 @@ def test_data_file_errors_name_the_data_file(tmp_path):
         import_plan(load_plan(path))
     assert info.value.path == str((tmp_path / "x_axis_hand.rtl").resolve())
     assert info.value.line == line_number(text, "Run-count")
+
+
+# ---- units: from the file, the plan or nowhere ---------------------------------------------
+
+
+def test_a_file_without_a_unit_and_a_plan_without_one_is_refused(tmp_path):
+    path = copy_plan(tmp_path, 'deviation_unit = "nm"\n', "")
+    with pytest.raises(FormatError) as info:
+        import_plan(load_plan(path))
+    assert info.value.path == str((tmp_path / "z_linear_hand.txt").resolve())
+    assert "deviation column number 2 has no unit" in info.value.reason
+    assert "deviation_unit" in info.value.reason
+
+
+def test_a_unit_that_contradicts_the_file_is_refused(tmp_path):
+    # the .rtl format defines µm
+    path = copy_plan(tmp_path, 'name = "x_y0_z0"\n', 'name = "x_y0_z0"\ndeviation_unit = "mm"\n')
+    with pytest.raises(FormatError, match=r"\[\[line\]\] 1 \('x_y0_z0'\), field "
+                       "'deviation_unit': the file is a Renishaw .rtl log, whose deviations are "
+                       "in µm by definition, but the plan says mm"):
+        import_plan(load_plan(path))
+    # the CSV's header says deviation_um
+    path = copy_plan(tmp_path, 'name = "y_straightness_x"\n',
+                     'name = "y_straightness_x"\ndeviation_unit = "nm"\n')
+    with pytest.raises(FormatError, match="declared as 'nm' .* says 'µm'") as info:
+        import_plan(load_plan(path))
+    assert info.value.path == str((tmp_path / "y_straightness_hand.csv").resolve())
+    # agreeing is fine, and a plan that omits the unit leaves it to the file
+    path = copy_plan(tmp_path, 'name = "x_y0_z0"\n', 'name = "x_y0_z0"\ndeviation_unit = "um"\n')
+    plan = load_plan(path)
+    assert plan.lines[0].deviation_unit_stated and not plan.lines[1].deviation_unit_stated
+    import_plan(plan)
+    assert 'deviation_unit = "um"' in plan_text(plan).split("[[line]]")[1]
+    assert "deviation_unit" not in plan_text(plan).split("[[line]]")[2]
+
+
+def test_real_flatness_file_through_a_plan(tmp_path, realdata):
+    """The Aerotech flatness file: mm deviations, mmHg pressure, °C temperatures, all given in
+    the plan; the pressure is stored as 97.9 kPa (it was 734 kPa)."""
+    source = realdata / "aerotech_flatness_angular" / "643630-1-1-X-test_Flatness.dat"
+    shutil.copy(source, tmp_path / source.name)
+    entry = (f'[machine]\nstroke = {{ X = [-80, 80], Y = [0, 100], Z = [0, 100] }}\n\n'
+             f'[[line]]\nname = "x_flat"\nfile = "{source.name}"\nquantity = "straightness"\n'
+             'start = [-80, 0, 0]\ndirection = [1, 0, 0]\nsensitive = [0, 0, 1]\n'
+             'data_marker = ":START"\ncolumns = { deviation = "Flat" }\n')
+    plan_path = tmp_path / "plan.toml"
+    plan_path.write_text(entry)
+    with pytest.raises(FormatError, match="'Flat' has no unit"):
+        import_plan(load_plan(plan_path))
+    plan_path.write_text(entry + 'deviation_unit = "mm"\n')
+    with pytest.raises(FormatError, match="'AirTemp' has no unit.*temperature_unit"):
+        import_plan(load_plan(plan_path))
+    plan_path.write_text(entry + 'deviation_unit = "mm"\ntemperature_unit = "C"\n'
+                         'pressure_unit = "mmHg"\n')
+    line = import_plan(load_plan(plan_path)).lines[0]
+    assert line.raw_unit == "mm"
+    assert line.corrected.deviations[0, 0] == pytest.approx(7.082)
+    assert line.corrected.environment.air_pressure_kpa[0] == pytest.approx(97.899, abs=1e-3)
+    assert line.corrected.environment.material_temp_c == ((20.40, 20.40),)
+
+
+def test_an_angular_file_is_not_imported_as_linear(tmp_path, realdata):
+    source = realdata / "aerotech_flatness_angular" / "643630-1-1-X-test_Angular.dat"
+    shutil.copy(source, tmp_path / source.name)
+    plan_path = tmp_path / "plan.toml"
+    base = (f'[machine]\nstroke = {{ X = [-80, 80], Y = [0, 100], Z = [0, 100] }}\n\n'
+            f'[[line]]\nfile = "{source.name}"\nstart = [-80, 0, 0]\ndirection = [1, 0, 0]\n'
+            'data_marker = ":START"\ncolumns = { deviation = "Pitch" }\n'
+            'temperature_unit = "C"\n')
+    plan_path.write_text(base + 'quantity = "linear"\ndeviation_unit = "um"\n')
+    with pytest.raises(FormatError, match="'Pitch' holds an angle"):
+        import_plan(load_plan(plan_path))
+    plan_path.write_text(base + 'quantity = "linear"\n')
+    with pytest.raises(FormatError, match="'Pitch' has no unit"):
+        import_plan(load_plan(plan_path))
+    plan_path.write_text(base + 'quantity = "angular"\nsensitive = [0, 1, 0]\n'
+                         'deviation_unit = "arcsec"\n')
+    line = import_plan(load_plan(plan_path)).lines[0]
+    assert line.corrected.deviations[0, 0] == pytest.approx(9.601346 * 4.84813681109536)
+
+
+# ---- the plan's files: inside its folder, regular, bounded ---------------------------------
+
+
+def plan_with_file(tmp_path, file: str, extra: str = "") -> Path:
+    folder = tmp_path / "plan"
+    folder.mkdir(exist_ok=True)
+    shutil.copy(DATA / "x_axis_hand.rtl", folder / "x.rtl")
+    path = folder / "plan.toml"
+    path.write_text('[machine]\nstroke = { X = [0, 400], Y = [0, 400], Z = [0, 400] }\n\n'
+                    f'[[line]]\nname = "x"\nfile = "{file}"\nquantity = "linear"\n'
+                    f'start = [0, 0, 0]\ndirection = [1, 0, 0]\n{extra}')
+    return path
+
+
+def refused(path: Path, match: str, files_root: Path | None = None) -> FormatError:
+    with pytest.raises(FormatError, match=match) as info:
+        import_plan(load_plan(path, files_root=files_root))
+    return info.value
+
+
+def test_files_outside_the_plan_folder_are_refused(tmp_path):
+    outside = tmp_path / "outside.rtl"
+    shutil.copy(DATA / "x_axis_hand.rtl", outside)
+    for name in (str(outside), "../outside.rtl", "sub/../../outside.rtl"):
+        error = refused(plan_with_file(tmp_path, name), "outside the plan's folder")
+        assert error.path.endswith("plan.toml") and error.line == 6  # the file = line
+        assert "--files-root" in error.reason
+    link = tmp_path / "plan" / "inside.rtl"
+    link.symlink_to(outside)
+    refused(plan_with_file(tmp_path, "inside.rtl"), "resolves to .*outside.rtl.*, outside")
+    # with the user's explicit permission
+    plan = load_plan(plan_with_file(tmp_path, "../outside.rtl"), files_root=tmp_path)
+    assert import_plan(plan).lines[0].readings == 20
+    # a link that stays inside is followed
+    (tmp_path / "plan" / "alias.rtl").symlink_to(tmp_path / "plan" / "x.rtl")
+    assert import_plan(load_plan(plan_with_file(tmp_path, "alias.rtl"))).lines[0].readings == 20
+
+
+def test_system_files_are_never_quoted(tmp_path):
+    """/proc/self/environ named in a plan: refused as outside, as not a measurement file and,
+    even when allowed and declared a table, as binary — never quoting the environment."""
+    secret = "volucal-secret-9f3a"
+    os.environ["VOLUCAL_TEST_SECRET"] = secret
+    try:
+        messages = [
+            str(refused(plan_with_file(tmp_path, "/proc/self/environ"), "outside")),
+            str(refused(plan_with_file(tmp_path, "/proc/self/environ"), "not named as a "
+                        "measurement file", files_root=Path("/"))),
+            str(refused(plan_with_file(tmp_path, "/proc/self/environ", 'format = "table"\n'
+                                       'deviation_unit = "um"\n'),
+                        "binary data", files_root=Path("/"))),
+            str(refused(plan_with_file(tmp_path, "/etc/passwd", 'format = "table"\n'
+                                       'deviation_unit = "um"\n'),
+                        "not a row of column names", files_root=Path("/"))),
+        ]
+    finally:
+        del os.environ["VOLUCAL_TEST_SECRET"]
+    for message in messages:
+        assert secret not in message and "PATH=" not in message
+    assert "root" not in messages[-1] and "/bin/" not in messages[-1]
+
+
+def test_fifos_devices_folders_and_huge_files_are_refused(tmp_path):
+    import threading
+
+    folder = tmp_path / "plan"
+    folder.mkdir()
+    os.mkfifo(folder / "pipe.csv")
+    (folder / "dir.csv").mkdir()
+    with open(folder / "sparse.csv", "wb") as handle:
+        handle.truncate(2 << 30)
+    (folder / "zero.csv").symlink_to("/dev/zero")
+    cases = {"pipe.csv": "FIFO", "dir.csv": "a folder", "sparse.csv": "2,147,483,648 bytes",
+             "zero.csv": "a device"}
+    for name, match in cases.items():
+        outcome: list[str] = []
+
+        def attempt(name: str = name, outcome: list[str] = outcome) -> None:
+            try:
+                import_plan(load_plan(plan_with_file(tmp_path, name, 'deviation_unit = "um"\n'
+                                                     'format = "table"\n'),
+                                      files_root=Path("/")))
+            except FormatError as error:
+                outcome.append(str(error))
+
+        worker = threading.Thread(target=attempt, daemon=True)
+        worker.start()
+        worker.join(10.0)  # a FIFO opened for reading would block forever
+        assert outcome and match in outcome[0], (name, outcome)
+
+
+def test_symlink_loop_as_the_plan_file(tmp_path):
+    (tmp_path / "a.toml").symlink_to(tmp_path / "b.toml")
+    (tmp_path / "b.toml").symlink_to(tmp_path / "a.toml")
+    with pytest.raises(FormatError, match="a loop of symbolic links"):
+        load_plan(tmp_path / "a.toml")
+
+
+def test_a_file_not_named_as_a_measurement(tmp_path):
+    folder = tmp_path / "plan"
+    folder.mkdir()
+    shutil.copy(DATA / "x_axis_hand.rtl", folder / "x.log")
+    refused(plan_with_file(tmp_path, "x.log"), "not named as a measurement file")
+    plan = load_plan(plan_with_file(tmp_path, "x.log", 'format = "rtl"\n'))
+    assert import_plan(plan).lines[0].readings == 20

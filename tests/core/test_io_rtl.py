@@ -245,3 +245,97 @@ def test_text_before_the_first_section(tmp_path):
 def test_missing_file_names_it(tmp_path):
     with pytest.raises(FormatError, match="file not found"):
         read_rtl(tmp_path / "absent.rtl")
+
+
+# ---- values a laser cannot produce, loose numbers, sizes ------------------------------------
+
+
+@pytest.mark.parametrize(
+    "old, new, match, fragment",
+    [
+        ("2  3     2.500", "2  3     1e300", r"deviation 1e\+300 is beyond ±1e\+06", "1e300"),
+        ("2  3     2.500", "2  3     1e999", "beyond the range of a number", "1e999"),
+        ("2  3     2.500", "2  3     2_500", "expected a number, found '2_500'", "2_500"),
+        ("2  3     2.500", "2  3     \u0662.500", "expected a number", "\u0662.500"),
+        ("2  3     2.500", "2  3     \uff12.500", "expected a number", "\uff12.500"),
+        ("2  3     2.500", "2  3     nan", "expected a number", "nan"),
+        ("2  3     2.500", "\u0662  3     2.500", "run number: expected a whole number",
+         "\u0662  3"),
+        ("2  3     2.500", "2.0  3     2.500", "run number: expected a whole number", "2.0  3"),
+        ("400.000000", "1e308", "target position", "1e308"),
+        ("100.000000", "0.00001", "at least 0.0001 mm apart", "Targets :"),
+        ("100.000000", "0.000000", "strictly increasing", "Targets :"),
+        ("Air press  : 99.039005", "Air press  : 734.31", "Air press", "Air press"),
+        ("Exp coeff  : 11.500000", "Exp coeff  : 1e9", "Exp coeff", "Exp coeff"),
+    ],
+)
+def test_values_no_laser_produces(tmp_path, old, new, match, fragment):
+    path = tmp_path / "bad.rtl"
+    path.write_text(HAND_RTL.read_text().replace(old, new, 1), encoding="utf-8")
+    lines = path.read_text(encoding="utf-8").splitlines()
+    line = next(n for n, text in enumerate(lines, start=1) if fragment in text)
+    expect(path, match, line)
+
+
+def test_a_small_file_cannot_claim_a_huge_grid(tmp_path):
+    """100,000 targets listed (an 800 KB file) and Run-count 1,000: 10⁸ readings claimed, refused
+    from the counts before an array of that size exists (it took 4 GB; the peak memory of such
+    imports is measured by benchmarks/bench_fuzz.py)."""
+    text = HAND_RTL.read_text()
+    targets = "\n".join(f"{i * 0.01:.2f}" for i in range(100_000))
+    text = text.replace("Target-count: 5", "Target-count: 100000").replace(
+        "  0.000000  100.000000  200.000000  300.000000  400.000000", targets).replace(
+        "Run-count: 4", "Run-count: 1000")
+    path = tmp_path / "huge.rtl"
+    path.write_text(text)
+    assert path.stat().st_size < 1_000_000
+    expect(path, r"Run-count 1000 × Target-count 100000 = 100,000,000 readings, beyond the "
+           "2,000,000", line_of(path, "DEVIATIONS::"))
+
+
+def test_devices_fifos_and_folders_are_refused(tmp_path):
+    import os
+    import threading
+
+    for path, kind in ((Path("/dev/zero"), "a device"), (tmp_path, "a folder")):
+        with pytest.raises(FormatError, match=f"is {kind}, not a measurement file"):
+            read_rtl(path)
+    fifo = tmp_path / "pipe.rtl"
+    os.mkfifo(fifo)
+    outcome: list[str] = []
+
+    def attempt() -> None:
+        try:
+            read_rtl(fifo)
+        except FormatError as error:
+            outcome.append(error.reason)
+
+    worker = threading.Thread(target=attempt, daemon=True)
+    worker.start()
+    worker.join(5.0)  # a blocking open would never return
+    assert outcome == ["is a FIFO (named pipe), not a measurement file"]
+
+
+def test_a_loop_of_symbolic_links(tmp_path):
+    (tmp_path / "a.rtl").symlink_to(tmp_path / "b.rtl")
+    (tmp_path / "b.rtl").symlink_to(tmp_path / "a.rtl")
+    with pytest.raises(FormatError, match="a loop of symbolic links"):
+        read_rtl(tmp_path / "a.rtl")
+
+
+def test_a_file_beyond_the_size_limit_is_not_read(tmp_path):
+    """A 2 GB sparse file: refused from its size, before a byte is read."""
+    path = tmp_path / "sparse.rtl"
+    with open(path, "wb") as handle:
+        handle.truncate(2 << 30)
+    with pytest.raises(FormatError, match="is 2,147,483,648 bytes; volucal reads files of up to "
+                       "67,108,864 bytes"):
+        read_rtl(path)
+
+
+def test_binary_content_is_refused_without_quoting_it(tmp_path):
+    path = tmp_path / "env.rtl"
+    path.write_bytes(b"HEADER::\nSECRET=hunter2\x00PATH=/usr/bin\x00")
+    with pytest.raises(FormatError) as info:
+        read_rtl(path)
+    assert "binary data" in info.value.reason and "hunter2" not in str(info.value)
