@@ -26,6 +26,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import sparse
 from scipy.linalg import cho_factor, cho_solve
 
 from .errors import (
@@ -38,6 +39,15 @@ from .errors import (
     ErrorModel,
     gauge_null_space,
 )
+from .identify_blocks import (
+    ConstrainedSystem,
+    Elimination,
+    LinePart,
+    NullSpace,
+    largest_eigenvalue,
+    largest_leverage,
+    line_schur,
+)
 from .kinematics import VolumetricModel, jacobian, rotation_error
 from .machine import AXES, AXIS_INDEX, Machine
 from .measurement import Measurement
@@ -46,6 +56,7 @@ from .readings import QUANTITY_CODE, Readings, flatten
 from .userror import UserError
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 
 #: Eigenvalues of the column-scaled normal matrix below this fraction of the largest are taken as
 #: zero: a direction whose singular value is 1e-6 of the strongest is not seen by the plan.
@@ -232,22 +243,33 @@ class ColumnBlock:
 
 @dataclass(eq=False)
 class LinearSystem:
-    """Weighted least squares in normal-equation form with per-line contributions.
+    """Weighted least squares in normal-equation form, stored by line.
 
-    ``normal`` = AᵀWA and ``rhs`` = AᵀWy over all readings; ``line_normal[l]`` and
-    ``line_rhs[l]`` are the parts that line l contributes (for leave-one-line-out).
+    ``normal`` = AᵀWA and ``rhs`` = AᵀWy over all readings (dense, unknowns × unknowns).
+    ``target_design`` holds the rows of A shared by the readings at one target — the 21 errors'
+    gauge coordinates, the lines' zero offsets and straightness slopes — as a sparse CSR matrix
+    (T × p_target) in which every row of a line has the same columns: the errors that line moves
+    and its own offset and slope. ``effect_design`` (readings × p_effect) holds the effects'
+    columns. A line's contribution to the normal equations (:meth:`line_part`, for
+    leave-one-line-out and the rank test of a line) is built from its rows when needed, on the
+    columns it touches only: nothing of size lines × unknowns² is ever stored.
+
+    ``line_targets`` (lines + 1) bounds each line's rows of ``target_design`` (targets are
+    sorted by line); ``reading_order`` lists the readings line by line and ``reading_bounds``
+    (lines + 1) bounds each line's readings in it.
     """
 
     blocks: list[ColumnBlock]
     normal: FloatArray
     rhs: FloatArray
-    line_normal: list[FloatArray]
-    line_rhs: list[FloatArray]
-    target_design: FloatArray  # (T, p_target): geometric + nuisance columns per target
+    target_design: sparse.csr_matrix  # (T, p_target): geometric + nuisance columns per target
     target_of_reading: NDArray[np.int64]
     effect_design: FloatArray  # (n, p_effect)
     y: FloatArray  # the (pseudo-)observations of this linearisation
     weights: FloatArray
+    line_targets: NDArray[np.int64]
+    reading_order: NDArray[np.int64]
+    reading_bounds: NDArray[np.int64]
     #: the effects' separable directions (see :func:`separable_reduction`), if restricted
     reduction: Reduction | None = None
 
@@ -259,32 +281,124 @@ class LinearSystem:
         r = self.reduction.matrix
         rigid = self.target_design.shape[1]
         blocks = [b for b in self.blocks if b.kind != "effect"] + list(self.reduction.blocks)
-        return LinearSystem(
-            blocks,
-            r.T @ self.normal @ r,
-            r.T @ self.rhs,
-            [r.T @ m @ r for m in self.line_normal],
-            [r.T @ b for b in self.line_rhs],
-            self.target_design,
-            self.target_of_reading,
-            self.effect_design @ r[rigid:, rigid:],
-            self.y,
-            self.weights,
+        return replace(
+            self,
+            blocks=blocks,
+            normal=_expand_pair(self.normal, r, rigid, transpose=True),
+            rhs=np.concatenate([self.rhs[:rigid], r[rigid:, rigid:].T @ self.rhs[rigid:]]),
+            effect_design=self.effect_design @ r[rigid:, rigid:],
+            reduction=None,
         )
 
     @property
     def size(self) -> int:
         return self.normal.shape[0]
 
+    @property
+    def lines(self) -> int:
+        return len(self.line_targets) - 1
+
     def design_rows(self, mask: NDArray[np.bool_] | None = None) -> FloatArray:
-        """Explicit rows of A for the readings in ``mask`` (all by default)."""
+        """Explicit (dense) rows of A for the readings in ``mask`` (all by default)."""
         idx = self.target_of_reading if mask is None else self.target_of_reading[mask]
         eff = self.effect_design if mask is None else self.effect_design[mask]
-        return np.hstack([self.target_design[idx], eff])
+        return np.hstack([self.target_design[idx].toarray(), eff])
 
     def line_columns(self, line: int) -> NDArray[np.int64]:
         cols = [np.arange(b.columns.start, b.columns.stop) for b in self.blocks if b.line == line]
         return np.concatenate(cols) if cols else np.empty(0, dtype=np.int64)
+
+    def own_columns(self, kinds: tuple[str, ...] = ("offset", "slope", "effect")) -> list[IntArray]:
+        """Per line, the columns of the blocks of those ``kinds`` that act on that line only."""
+        own: list[list[IntArray]] = [[] for _ in range(self.lines)]
+        for b in self.blocks:
+            if b.line is not None and b.kind in kinds:
+                own[b.line].append(np.arange(b.columns.start, b.columns.stop))
+        return [np.concatenate(c) if c else np.empty(0, dtype=np.int64) for c in own]
+
+    def line_readings(self, line: int) -> IntArray:
+        """Indices of the line's readings."""
+        return self.reading_order[self.reading_bounds[line] : self.reading_bounds[line + 1]]
+
+    def line_rows(self, line: int) -> tuple[IntArray, FloatArray]:
+        """(columns, rows) of the line's targets in ``target_design``: the dense block
+        (targets × columns) its rows hold on the columns they share."""
+        a, z = self.line_targets[line], self.line_targets[line + 1]
+        td = self.target_design
+        start, stop = td.indptr[a], td.indptr[z]
+        if z == a:
+            return np.empty(0, dtype=np.int64), np.zeros((0, 0))
+        k = (td.indptr[a + 1] - start) if z > a else 0
+        return td.indices[start : start + k].astype(np.int64), td.data[start:stop].reshape(z - a, k)
+
+    def line_part(self, line: int, keep: NDArray[np.bool_] | None = None) -> LinePart:
+        """The line's contribution to the normal equations, on the columns it touches: from its
+        readings (those in ``keep`` only, if given)."""
+        columns, block = self.line_rows(line)
+        readings = self.line_readings(line)
+        if keep is not None:
+            readings = readings[keep[readings]]
+        count = block.shape[0]
+        local = self.target_of_reading[readings] - self.line_targets[line]
+        w = self.weights[readings]
+        y = self.y[readings]
+        w_t = np.bincount(local, weights=w, minlength=count)
+        wy_t = np.bincount(local, weights=w * y, minlength=count)
+        normal = (block * w_t[:, None]).T @ block
+        rhs = block.T @ wy_t
+        if self.effect_design.shape[1] and readings.size:
+            e = self.effect_design[readings]
+            touched = np.flatnonzero(np.any(e != 0.0, axis=0))
+            if touched.size:
+                e = e[:, touched]
+                we = e * w[:, None]
+                agg = np.stack(
+                    [np.bincount(local, weights=col, minlength=count) for col in we.T], axis=-1
+                )
+                cross = block.T @ agg
+                normal = np.block([[normal, cross], [cross.T, e.T @ we]])
+                rhs = np.concatenate([rhs, we.T @ y])
+                columns = np.concatenate([columns, self.target_design.shape[1] + touched])
+        return LinePart(columns, normal, rhs)
+
+    def stored_nbytes(self) -> dict[str, int]:
+        """Bytes held per kind of storage: what is stored by line (design rows, index arrays)
+        and the dense unknowns × unknowns normal matrix."""
+        td = self.target_design
+        by_line = sum(
+            a.nbytes
+            for a in (
+                td.data,
+                td.indices,
+                td.indptr,
+                self.target_of_reading,
+                self.effect_design,
+                self.y,
+                self.weights,
+                self.line_targets,
+                self.reading_order,
+                self.reading_bounds,
+            )
+        )
+        return {"lines": int(by_line), "normal": int(self.normal.nbytes + self.rhs.nbytes)}
+
+
+def _expand_pair(
+    matrix: FloatArray, r: FloatArray, rigid: int, transpose: bool = False
+) -> FloatArray:
+    """r·M·rᵀ (or rᵀ·M·r with ``transpose``) for a reduction matrix r that is the identity on the
+    first ``rigid`` columns and block-structured after: computed by blocks (r is P × P')."""
+    e = r[rigid:, rigid:]
+    if transpose:
+        e = e.T
+    n_out = rigid + e.shape[0]
+    out = np.empty((n_out, n_out))
+    out[:rigid, :rigid] = matrix[:rigid, :rigid]
+    cross = matrix[:rigid, rigid:] @ e.T
+    out[:rigid, rigid:] = cross
+    out[rigid:, :rigid] = cross.T
+    out[rigid:, rigid:] = e @ matrix[rigid:, rigid:] @ e.T
+    return out
 
 
 def _column_scale(normal: FloatArray) -> FloatArray:
@@ -296,10 +410,29 @@ def _column_scale(normal: FloatArray) -> FloatArray:
     return np.where(seen, 1.0 / np.sqrt(np.where(seen, diag, 1.0)), 1.0)
 
 
+def _rank_limit(normal: FloatArray, scale: FloatArray) -> float:
+    """Eigenvalues of the column-scaled normal matrix at or below this are taken as zero."""
+    largest = largest_eigenvalue(normal * scale[:, None] * scale[None, :])
+    return RANK_TOLERANCE * max(largest, 1e-300)
+
+
+def _eliminate(
+    system: LinearSystem, kinds: tuple[str, ...] = ("offset", "slope", "effect")
+) -> tuple[Elimination, float]:
+    """The system with every line's own columns eliminated, and the rank limit."""
+    scale = _column_scale(system.normal)
+    limit = _rank_limit(system.normal, scale)
+    return (
+        Elimination.of(system.line_part, system.own_columns(kinds), system.size, scale, limit),
+        limit,
+    )
+
+
 def _scaled_pinv(normal: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Pseudo-inverse of a normal matrix via the column-scaled eigen-decomposition.
 
-    Returns (pinv, scale, eigenvalues, eigenvectors) in scaled coordinates.
+    Returns (pinv, scale, eigenvalues, eigenvectors) in scaled coordinates. Dense (unknowns³):
+    for small matrices only; identification itself works line by line (core/identify_blocks.py).
     """
     scale = _column_scale(normal)
     scaled = normal * scale[:, None] * scale[None, :]
@@ -333,24 +466,37 @@ class Reduction:
 def separable_reduction(system: LinearSystem) -> Reduction | None:
     """Per effect, the eigenvectors of its Schur complement against the other columns (the
     information it does not share with the 21 errors and the nuisances), column-scaled, whose
-    eigenvalue reaches :data:`SEPARABILITY`; None without effects."""
+    eigenvalue reaches :data:`SEPARABILITY`; None without effects.
+
+    The lines' offsets and slopes are eliminated line by line; the Schur complement against the
+    21 errors is then taken on the (small) reduced system.
+    """
     effects = [b for b in system.blocks if b.kind == "effect"]
     if not effects:
         return None
     rigid = effects[0].columns.start  # effect columns come last
     scale = _column_scale(system.normal)
-    scaled = system.normal * scale[:, None] * scale[None, :]
-    values, vectors = np.linalg.eigh(scaled[:rigid, :rigid])
-    seen = values > RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
+    limit = _rank_limit(system.normal[:rigid, :rigid], scale[:rigid])
+    elimination = Elimination.of(
+        system.line_part, system.own_columns(("offset", "slope")), system.size, scale, limit
+    )
+    reduced = elimination.reduced
+    errors = np.flatnonzero(elimination.glob < rigid)
+    effect_positions = np.flatnonzero(elimination.glob >= rigid)  # every effect column, in order
+    values, vectors = np.linalg.eigh(reduced[np.ix_(errors, errors)])
+    seen = values > limit
     vectors, values = vectors[:, seen], values[seen]
+    projected = vectors.T @ reduced[np.ix_(errors, effect_positions)]
+    schur_all = reduced[np.ix_(effect_positions, effect_positions)] - projected.T @ (
+        projected / values[:, None]
+    )
     pieces = []
     blocks = []
     start = rigid
     for block in effects:
         columns = np.arange(block.columns.start, block.columns.stop)
-        projected = vectors.T @ scaled[:rigid, columns]
-        schur = scaled[np.ix_(columns, columns)] - projected.T @ (projected / values[:, None])
-        s_values, s_vectors = np.linalg.eigh(schur)
+        local = columns - rigid
+        s_values, s_vectors = np.linalg.eigh(schur_all[np.ix_(local, local)])
         kept = s_vectors[:, s_values > SEPARABILITY] * scale[columns][:, None]
         pieces.append((columns, kept))
         blocks.append(replace(block, columns=slice(start, start + kept.shape[1])))
@@ -365,29 +511,50 @@ def separable_reduction(system: LinearSystem) -> Reduction | None:
 @dataclass(frozen=True, eq=False)
 class _Subspace:
     """The identifiable subspace of a system, fixed in the column scaling of its first
-    linearisation: x = scale · basis · z."""
+    linearisation: the complement (in scaled coordinates) of its null space."""
 
     scale: FloatArray
-    basis: FloatArray  # (P, rank), orthonormal in scaled coordinates
+    null: NullSpace  # in the scaled coordinates of ``scale``
+    rank: int
 
     @classmethod
-    def of(cls, normal: FloatArray) -> _Subspace:
-        _, scale, values, vectors = _scaled_pinv(normal)
-        keep = values > RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
-        return cls(scale, vectors[:, keep])
+    def of(cls, system: LinearSystem) -> _Subspace:
+        elimination, limit = _eliminate(system)
+        null = elimination.null_space(limit)
+        return cls(elimination.scale, null, system.size - null.dimensions)
 
-    def _reduced(self, normal: FloatArray) -> tuple[FloatArray, FloatArray]:
-        t = self.basis * self.scale[:, None]  # x = t z
-        return t, t.T @ normal @ t
+    def restrict(self, system: LinearSystem) -> ConstrainedSystem:
+        """The least-squares problem of ``system`` restricted to the subspace."""
+        elimination = Elimination.of(
+            system.line_part,
+            system.own_columns(),
+            system.size,
+            self.scale,
+            0.0,
+            own_null=self.null.own,
+        )
+        return ConstrainedSystem.of(elimination, self.null.vectors)
 
-    def solve(self, normal: FloatArray, rhs: FloatArray) -> FloatArray:
-        t, reduced = self._reduced(normal)
-        return np.asarray(t @ np.linalg.solve(reduced, t.T @ rhs))
+    def solve(self, system: LinearSystem) -> FloatArray:
+        return np.asarray(self.restrict(system).solve() * self.scale)
 
-    def inverse(self, normal: FloatArray) -> FloatArray:
+    def inverse(self, system: LinearSystem) -> FloatArray:
         """Covariance factor (AᵀWA)⁺ restricted to the identifiable subspace."""
-        t, reduced = self._reduced(normal)
-        return np.asarray(t @ np.linalg.inv(reduced) @ t.T)
+        return np.asarray(self.restrict(system).inverse() * self.scale[:, None] * self.scale)
+
+
+#: Ridge added to the column-scaled normal matrix of a leave-one-line-out fit.
+RIDGE = 1e-11
+
+
+def _spd_solve(matrix: FloatArray, rhs: FloatArray) -> FloatArray:
+    """Solve with a (ridged) symmetric positive definite matrix by Cholesky; by its
+    pseudo-inverse if rounding left it indefinite (as :func:`solve_normal` does)."""
+    try:
+        factor = cho_factor(matrix, lower=True, check_finite=False, overwrite_a=True)
+        return np.asarray(cho_solve(factor, rhs, check_finite=False))
+    except np.linalg.LinAlgError:
+        return np.asarray(np.linalg.pinv(matrix, hermitian=True) @ rhs)
 
 
 def solve_normal(normal: FloatArray, rhs: FloatArray) -> FloatArray:
@@ -395,7 +562,7 @@ def solve_normal(normal: FloatArray, rhs: FloatArray) -> FloatArray:
     Cholesky factorisation with a tiny ridge for rank-deficient systems."""
     scale = _column_scale(normal)
     scaled = normal * scale[:, None] * scale[None, :]
-    scaled[np.diag_indices_from(scaled)] += 1e-11
+    scaled[np.diag_indices_from(scaled)] += RIDGE
     try:
         factor = cho_factor(scaled, lower=True, check_finite=False)
         return np.asarray(cho_solve(factor, rhs * scale, check_finite=False) * scale)
@@ -411,7 +578,7 @@ def solve_normal(normal: FloatArray, rhs: FloatArray) -> FloatArray:
 
 @dataclass(frozen=True, eq=False)
 class _Targets:
-    """Unique (line, target) points of a measurement."""
+    """Unique (line, target) points of a measurement, sorted by line."""
 
     line: NDArray[np.int64]
     position_mm: FloatArray
@@ -420,6 +587,22 @@ class _Targets:
     quantity: NDArray[np.int64]
     target_mm: FloatArray
     of_reading: NDArray[np.int64]
+
+    def rows(self, start: int, stop: int) -> _Targets:
+        """The targets start … stop − 1 (``of_reading`` is left as is)."""
+        return _Targets(
+            self.line[start:stop],
+            self.position_mm[start:stop],
+            self.reflector_mm[start:stop],
+            self.projection[start:stop],
+            self.quantity[start:stop],
+            self.target_mm[start:stop],
+            self.of_reading,
+        )
+
+    def bounds(self, lines: int) -> NDArray[np.int64]:
+        """(lines + 1) bounds of each line's targets."""
+        return np.searchsorted(self.line, np.arange(lines + 1)).astype(np.int64)
 
 
 def _unique_targets(readings: Readings) -> _Targets:
@@ -534,6 +717,47 @@ class EffectTerm:
         raise NotImplementedError
 
 
+#: Targets whose Jacobian (targets × 3 × parameters) is built at once: about 50 MB of it.
+_JACOBIAN_ENTRIES = 2_000_000
+
+
+@dataclass(frozen=True, eq=False)
+class GeometricDesign:
+    """d(reading)/dθ of every target in the gauge coordinates, line by line: ``columns[l]`` are
+    the gauge coordinates line l moves, ``rows[l]`` (its targets × those columns) the values."""
+
+    columns: list[IntArray]
+    rows: list[FloatArray]
+
+    @classmethod
+    def of(
+        cls, model: ErrorModel, targets: _Targets, gauge: Gauge, bounds: IntArray
+    ) -> GeometricDesign:
+        budget = max(1, _JACOBIAN_ENTRIES // max(model.parameter_count, 1))
+        lines = len(bounds) - 1
+        columns: list[IntArray] = []
+        rows: list[FloatArray] = []
+        first = 0
+        while first < lines:
+            last = first + 1
+            while last < lines and bounds[last + 1] - bounds[first] <= budget:
+                last += 1
+            a = bounds[first]
+            geo = _geometric_rows(model, targets.rows(a, bounds[last])) @ gauge.matrix
+            for line in range(first, last):
+                sub = geo[bounds[line] - a : bounds[line + 1] - a]
+                touched = np.flatnonzero(np.any(sub != 0.0, axis=0))
+                columns.append(touched)
+                rows.append(np.ascontiguousarray(sub[:, touched]))
+            first = last
+        return cls(columns, rows)
+
+    def apply(self, theta: FloatArray) -> FloatArray:
+        """rows · θ for every target."""
+        parts = [r @ theta[c] for c, r in zip(self.columns, self.rows, strict=True)]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+
 def build_system(
     readings: Readings,
     targets: _Targets,
@@ -542,33 +766,58 @@ def build_system(
     effects: Sequence[EffectTerm],
     pseudo_y: FloatArray,
     effect_model: ErrorModel | None = None,
+    geometric: GeometricDesign | None = None,
 ) -> LinearSystem:
     """Assemble the normal equations for one linearisation (effects designed with
-    ``effect_model``, by default the linearisation point itself)."""
+    ``effect_model``, by default the linearisation point itself; the geometric rows given or
+    computed at ``model``)."""
     n_lines = len(readings.lines)
-    geo = _geometric_rows(model, targets) @ gauge.matrix  # (T, G)
+    bounds = targets.bounds(n_lines)
+    if geometric is None:
+        geometric = GeometricDesign.of(model, targets, gauge, bounds)
     blocks: list[ColumnBlock] = [ColumnBlock("error", eid, gauge.blocks[eid]) for eid in ERROR_IDS]
     start = gauge.size
-    offset_cols = np.zeros((len(targets.line), n_lines))
-    offset_cols[np.arange(len(targets.line)), targets.line] = 1.0
     for index, line in enumerate(readings.lines):
         blocks.append(
             ColumnBlock("offset", line.name, slice(start + index, start + index + 1), index)
         )
+    offset_of = start + np.arange(n_lines)
     start += n_lines
     straight_lines = [
         i for i, line in enumerate(readings.lines) if line.spec.quantity == "straightness"
     ]
-    slope_cols = np.zeros((len(targets.line), len(straight_lines)))
+    slope_of: dict[int, int] = {}
     for k, index in enumerate(straight_lines):
-        mask = targets.line == index
-        # slope per metre of travel keeps the columns on the scale of the others
-        slope_cols[mask, k] = targets.target_mm[mask] / 1000.0
         blocks.append(
             ColumnBlock("slope", readings.lines[index].name, slice(start + k, start + k + 1), index)
         )
+        slope_of[index] = start + k
     start += len(straight_lines)
-    target_design = np.hstack([geo, offset_cols, slope_cols])
+    p_t = start
+    # target rows line by line: the line's error columns, then its offset (and slope) column
+    data, indices, row_length = [], [], []
+    for index in range(n_lines):
+        a, z = bounds[index], bounds[index + 1]
+        columns = [geometric.columns[index], [offset_of[index]]]
+        pieces = [geometric.rows[index], np.ones((z - a, 1))]
+        if index in slope_of:
+            columns.append([slope_of[index]])
+            # slope per metre of travel keeps the columns on the scale of the others
+            pieces.append(targets.target_mm[a:z, None] / 1000.0)
+        columns_l = np.concatenate(columns).astype(np.int32)
+        data.append(np.hstack(pieces).ravel())
+        indices.append(np.tile(columns_l, z - a))
+        row_length.append(np.full(z - a, columns_l.size))
+    indptr = np.concatenate([[0], np.cumsum(np.concatenate(row_length))]) if n_lines else [0]
+    target_design = sparse.csr_matrix(
+        (
+            np.concatenate(data) if data else np.zeros(0),
+            np.concatenate(indices) if indices else np.zeros(0, np.int32),
+            np.asarray(indptr, dtype=np.int64),
+        ),
+        shape=(len(targets.line), p_t),
+    )
+    del data, indices
     effect_parts = []
     for effect in effects:
         d = effect.design(readings, effect_model or model)
@@ -578,52 +827,25 @@ def build_system(
         )
         start += d.shape[1]
     effect_design = np.hstack(effect_parts) if effect_parts else np.zeros((len(readings), 0))
-    weights = 1.0 / readings.sigma**2
-    idx = targets.of_reading
-    p_t = target_design.shape[1]
-    line_normal, line_rhs = [], []
-    normal = np.zeros((start, start))
-    rhs = np.zeros(start)
-    for index in range(n_lines):
-        rmask = readings.line == index
-        tmask = targets.line == index
-        t_index = np.flatnonzero(tmask)
-        local = np.searchsorted(t_index, idx[rmask])
-        w = weights[rmask]
-        w_t = np.bincount(local, weights=w, minlength=len(t_index))
-        wy_t = np.bincount(local, weights=w * pseudo_y[rmask], minlength=len(t_index))
-        g = target_design[t_index]
-        m = np.zeros((start, start))
-        b = np.zeros(start)
-        m[:p_t, :p_t] = (g * w_t[:, None]).T @ g
-        b[:p_t] = g.T @ wy_t
-        if effect_design.shape[1]:
-            e = effect_design[rmask]
-            we = e * w[:, None]
-            agg = np.stack(
-                [np.bincount(local, weights=col, minlength=len(t_index)) for col in we.T], axis=-1
-            )
-            cross = g.T @ agg
-            m[:p_t, p_t:] = cross
-            m[p_t:, :p_t] = cross.T
-            m[p_t:, p_t:] = e.T @ we
-            b[p_t:] = we.T @ pseudo_y[rmask]
-        line_normal.append(m)
-        line_rhs.append(b)
-        normal += m
-        rhs += b
-    return LinearSystem(
+    order = np.argsort(readings.line, kind="stable").astype(np.int64)
+    system = LinearSystem(
         blocks,
-        normal,
-        rhs,
-        line_normal,
-        line_rhs,
+        np.zeros((start, start)),
+        np.zeros(start),
         target_design,
-        idx,
+        targets.of_reading,
         effect_design,
         pseudo_y,
-        weights,
+        1.0 / readings.sigma**2,
+        bounds,
+        order,
+        np.searchsorted(readings.line[order], np.arange(n_lines + 1)).astype(np.int64),
     )
+    for index in range(n_lines):
+        part = system.line_part(index)
+        system.normal[np.ix_(part.columns, part.columns)] += part.normal
+        system.rhs[part.columns] += part.rhs
+    return system
 
 
 # --------------------------------------------------------------------------------------------
@@ -654,10 +876,10 @@ def identifiability(
     system: LinearSystem, gauge: Gauge, lines: Sequence[str], redundancy: bool = True
 ) -> Identifiability:
     """Rank, what the plan cannot see (named), and which lines are redundant."""
-    _, scale, values, vectors = _scaled_pinv(system.normal)
-    limit = RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
-    null = vectors[:, values <= limit]  # scaled coordinates
-    rank = int(np.sum(values > limit))
+    elimination, limit = _eliminate(system)
+    nulls = elimination.null_space(limit)
+    null = nulls.orthonormal()  # scaled coordinates
+    rank = system.size - null.shape[1]
     messages: list[Unidentifiable] = []
     unidentified: set[str] = set()
     block_of = {b.key: b for b in system.blocks if b.kind == "error"}
@@ -703,17 +925,77 @@ def identifiability(
             messages.append(Unidentifiable((eid, *partners), dims, text))
     redundant: list[str] = []
     if redundancy:
-        lim = RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
-        for index, name in enumerate(lines):
-            own = system.line_columns(index)
-            keep = np.setdiff1d(np.arange(system.size), own)
-            m = (system.normal - system.line_normal[index]) * scale[:, None] * scale[None, :]
-            m = m[np.ix_(keep, keep)]
-            ev = np.linalg.eigvalsh(m)
-            if int(np.sum(ev > lim)) == rank - len(own):
-                redundant.append(name)
+        redundant = [
+            name
+            for index, name in enumerate(lines)
+            if _is_redundant(system, elimination, index, limit)
+        ]
     identified = tuple(e for e in ERROR_IDS if e not in unidentified)
     return Identifiability(rank, system.size, tuple(messages), tuple(redundant), identified)
+
+
+def _is_redundant(system: LinearSystem, elimination: Elimination, line: int, limit: float) -> bool:
+    """Whether leaving the line out keeps the rank of every other column (its own columns go
+    with it): its largest leverage on the reduced system stays below 1.
+
+    With R the reduced matrix and S the line's Schur part, R − S keeps R's rank when the
+    eigenvalues h of S against R (the line's leverages) are below 1; an eigenvalue of R − S
+    then lies between (1 − h)·λmin(R) and (1 − h)·λmax(R), compared with the rank limit as the
+    whole matrix's eigenvalues are. In between, R − S's eigenvalues are counted directly.
+    """
+    block = elimination.lines[line]
+    values, _ = elimination.eigen
+    kept = values[values > limit]
+    if block.null.shape[1]:
+        return _keeps_rank(elimination, system, line, limit, block.null.shape[1])
+    if kept.size == 0:
+        return True
+    pinv = elimination.reduced_pinv(limit)
+    touched = block.touched
+    rows = _projected_rows(system, elimination, line)
+    h = largest_leverage(rows, pinv[np.ix_(touched, touched)])
+    gap = 1.0 - h
+    if gap * kept[0] > limit:
+        return True
+    if gap * kept[-1] <= limit:
+        return False
+    return _keeps_rank(elimination, system, line, limit, 0)
+
+
+def _projected_rows(system: LinearSystem, elimination: Elimination, line: int) -> FloatArray:
+    """A factor F (·× touched) of the line's Schur part S = FᵀF, scaled: its weighted target
+    rows with its own columns projected out, or (when effects act on the line, whose rows differ
+    from reading to reading) the square root of S."""
+    block = elimination.lines[line]
+    scale = elimination.scale
+    part = system.line_part(line)
+    own = np.isin(part.columns, block.columns)
+    target_columns, rows = system.line_rows(line)
+    if target_columns.size != part.columns.size:
+        schur, _ = line_schur(block, part, scale)
+        values, vectors = np.linalg.eigh(schur)
+        return np.asarray((vectors * np.sqrt(np.maximum(values, 0.0))).T)
+    readings = system.line_readings(line)
+    local = system.target_of_reading[readings] - system.line_targets[line]
+    w_t = np.bincount(local, weights=system.weights[readings], minlength=rows.shape[0])
+    x = rows * scale[target_columns]
+    # own columns in the order of block.columns
+    where = np.searchsorted(target_columns, block.columns)
+    projected = x[:, ~own] - x[:, where] @ (block.inverse @ block.coupling)
+    return np.asarray(projected * np.sqrt(w_t)[:, None])
+
+
+def _keeps_rank(
+    elimination: Elimination, system: LinearSystem, line: int, limit: float, lost_own: int
+) -> bool:
+    """R − S has R's rank less the line's undetermined own directions (eigenvalues counted)."""
+    block = elimination.lines[line]
+    values, _ = elimination.eigen
+    schur, _ = line_schur(block, system.line_part(line), elimination.scale)
+    reduced = elimination.reduced.copy()
+    reduced[np.ix_(block.touched, block.touched)] -= schur
+    left = np.linalg.eigvalsh(reduced)
+    return int(np.sum(left > limit)) == int(np.sum(values > limit)) - lost_own
 
 
 # --------------------------------------------------------------------------------------------
@@ -727,17 +1009,13 @@ def _without_effects(system: LinearSystem) -> LinearSystem:
     size = min((b.columns.start for b in system.blocks if b.kind == "effect"), default=system.size)
     if size == system.size:
         return system
-    return LinearSystem(
-        [b for b in system.blocks if b.kind != "effect"],
-        system.normal[:size, :size],
-        system.rhs[:size],
-        [m[:size, :size] for m in system.line_normal],
-        [b[:size] for b in system.line_rhs],
-        system.target_design,
-        system.target_of_reading,
-        np.zeros((len(system.target_of_reading), 0)),
-        system.y,
-        system.weights,
+    return replace(
+        system,
+        blocks=[b for b in system.blocks if b.kind != "effect"],
+        normal=system.normal[:size, :size],
+        rhs=system.rhs[:size],
+        effect_design=np.zeros((len(system.target_of_reading), 0)),
+        reduction=None,
     )
 
 
@@ -763,6 +1041,7 @@ def identify(
     if len(readings) == 0:
         raise IdentificationError("the measurement has no valid readings")
     targets = _unique_targets(readings)
+    bounds = targets.bounds(len(readings.lines))
     model = model_with_bases(measurement.machine, options)
     gauge = Gauge.for_model(model)
     theta = np.zeros(gauge.size) if initial is None else gauge.matrix.T @ initial.parameters
@@ -772,8 +1051,7 @@ def identify(
     rank_info: Identifiability | None = None
     solution = np.zeros(0)
     reduction: Reduction | None = None
-    expand = np.eye(0)
-    reduced: LinearSystem | None = None
+    restricted: ConstrainedSystem | None = None
     max_iterations = options.max_iterations if options.refine else 1
     noise = float(np.median(readings.sigma))
     for iterations in range(1, max_iterations + 1):
@@ -782,10 +1060,13 @@ def identify(
             progress, 0.1 + 0.7 * (iterations - 1) / max_iterations, f"linear solve {iterations}"
         )
         current = model.with_parameters(gauge.matrix @ theta)
-        rows = _geometric_rows(current, targets) @ gauge.matrix
-        base = predict_geometric(current, targets) - rows @ theta
+        geometric = GeometricDesign.of(current, targets, gauge, bounds)
+        base = predict_geometric(current, targets) - geometric.apply(theta)
         pseudo_y = readings.value - base[targets.of_reading]
-        system = build_system(readings, targets, current, gauge, effects, pseudo_y)
+        system = build_system(
+            readings, targets, current, gauge, effects, pseudo_y, geometric=geometric
+        )
+        del geometric
         if subspace is None:
             # What the plan can see is decided once, on the first-order system (the Jacobian at
             # zero errors): nonlinear refinement must not turn second-order couplings into
@@ -798,7 +1079,7 @@ def identify(
                 )
             reduction = separable_reduction(structural)
             structural.reduction = reduction
-            subspace = _Subspace.of(structural.reduced().normal)
+            subspace = _Subspace.of(structural.reduced())
             # What the plan sees of the 21 errors is judged without the effects: what an effect
             # shares with a rigid body is left to the rigid body (separable_reduction).
             rank_info = identifiability(
@@ -807,27 +1088,37 @@ def identify(
                 [line.name for line in readings.lines],
                 options.redundancy,
             )
+            del structural
         system.reduction = reduction
         reduced = system.reduced()
-        expand = np.eye(system.size) if reduction is None else reduction.matrix
-        solution = expand @ subspace.solve(reduced.normal, reduced.rhs)
+        restricted = subspace.restrict(reduced)
+        solution = _expand(
+            reduction,
+            _refined_solve(reduced, restricted, subspace.scale),
+            reduced.target_design.shape[1],
+        )
         new_theta = solution[: gauge.size]
         change = _max_value_change(model, gauge, theta, new_theta)
         theta = new_theta
         if change < 1e-2 * noise:
             break
     assert system is not None and subspace is not None and rank_info is not None
+    assert restricted is not None
     model = model.with_parameters(gauge.matrix @ theta)
     check(cancel)
     report(progress, 0.85, "uncertainty")
     design_residual = system.y - _apply(system, solution)
     final_pred = readings.value - design_residual
-    fitted_rank = int(subspace.basis.shape[1])
+    fitted_rank = subspace.rank
     dof = max(len(readings) - fitted_rank, 1)
     chi2 = float(np.sum(system.weights * design_residual**2))
     sigma_scale = float(np.sqrt(chi2 / dof))
-    assert reduced is not None
-    normal_inverse = expand @ subspace.inverse(reduced.normal) @ expand.T
+    scale = subspace.scale
+    rigid = system.target_design.shape[1]
+    normal_inverse = restricted.inverse() * scale[:, None] * scale[None, :]
+    if reduction is not None:
+        normal_inverse = _expand_pair(normal_inverse, reduction.matrix, rigid)
+    del restricted
     cov_all = normal_inverse * sigma_scale**2
     g = gauge.size
     covariance = gauge.matrix @ cov_all[:g, :g] @ gauge.matrix.T
@@ -860,6 +1151,39 @@ def identify(
         system=system,
         fitted_rank=fitted_rank,
     )
+
+
+def _refined_solve(
+    system: LinearSystem, restricted: ConstrainedSystem, scale: FloatArray
+) -> FloatArray:
+    """The restricted least-squares solution, refined once with the residual of the design
+    itself (corrected semi-normal equations): the normal equations square the design's
+    condition number, the residual y − Ax does not, so the step recovers the digits an
+    ill-conditioned plan (a few diagonals) loses in AᵀWA."""
+    x = restricted.solve()
+    residual = system.y - _apply(system, x * scale)
+    correction = restricted.solve(_apply_transpose(system, system.weights * residual) * scale)
+    return np.asarray((x + correction) * scale)
+
+
+def _apply_transpose(system: LinearSystem, values: FloatArray) -> FloatArray:
+    """Aᵀ·v for a value per reading."""
+    per_target = np.bincount(
+        system.target_of_reading, weights=values, minlength=system.target_design.shape[0]
+    )
+    out = system.target_design.T @ per_target
+    if system.effect_design.shape[1]:
+        out = np.concatenate([out, system.effect_design.T @ values])
+    return np.asarray(out)
+
+
+def _expand(reduction: Reduction | None, reduced: FloatArray, rigid: int) -> FloatArray:
+    """The solution in all unknowns from the reduced unknowns (effects follow the ``rigid``
+    columns)."""
+    if reduction is None:
+        return reduced
+    r = reduction.matrix
+    return np.concatenate([reduced[:rigid], r[rigid:, rigid:] @ reduced[rigid:]])
 
 
 def _apply(system: LinearSystem, solution: FloatArray) -> FloatArray:
@@ -906,29 +1230,78 @@ def cross_validate(
     offset, straightness slope and set-up effects) to what is left — the laser's zero and
     alignment are unknown for a line never seen. When some lines are not redundant (leaving them
     out loses rank), held-out contiguous blocks of targets are used instead.
+
+    The fit without a line is the full fit downdated by the line's part on the reduced system
+    (its own columns eliminated), on the columns the line touches: no refit per line.
     """
     system = system.reduced()
     names = [line.name for line in readings.lines]
     if redundant is not None and set(names) - set(redundant):
         return _cross_validate_blocks(system, readings)
+    # The fit without a line is solve_normal's: the normal equations without the line (its own
+    # columns left out) with a ridge of RIDGE on the column-scaled diagonal. The ridge scales
+    # with the diagonal *without* the line, which on the columns the line touches is the full
+    # diagonal less the line's. With every line's own columns eliminated (ridge included), that
+    # is the reduced matrix less the line's Schur part, solved by Cholesky as solve_normal does:
+    # the ridged directions the plan barely sees (eigenvalues near RIDGE) make an update by the
+    # Woodbury identity lose digits there.
+    scale = _column_scale(system.normal)
+    elimination = Elimination.of(
+        system.line_part, system.own_columns(), system.size, scale, 0.0, ridge=RIDGE
+    )
     residual = np.empty(len(readings))
     for index in range(len(names)):
-        own = system.line_columns(index)
-        keep = np.setdiff1d(np.arange(system.size), own)
-        m = system.normal - system.line_normal[index]
-        b = system.rhs - system.line_rhs[index]
-        x = np.zeros(system.size)
-        x[keep] = solve_normal(m[np.ix_(keep, keep)], b[keep])
-        mask = readings.line == index
-        rows = system.design_rows(mask)
-        r = system.y[mask] - rows @ x
-        if own.size:
-            local = rows[:, own]
-            w = np.sqrt(system.weights[mask])
+        block = elimination.lines[index]
+        touched = block.touched
+        part = system.line_part(index)
+        schur, rhs = line_schur(block, part, scale)
+        global_part = ~np.isin(part.columns, block.columns)
+        diagonal = np.diag(part.normal)[global_part] * scale[part.columns[global_part]] ** 2
+        schur[np.diag_indices_from(schur)] += RIDGE * diagonal
+        matrix = elimination.reduced.copy()
+        matrix[np.ix_(touched, touched)] -= schur
+        right = elimination.reduced_rhs.copy()
+        right[touched] -= rhs
+        without = _spd_solve(matrix, right)[touched]
+        columns = elimination.glob[touched]
+        solution = np.zeros(system.size)
+        solution[columns] = without * scale[columns]
+        rows = system.line_readings(index)
+        r = system.y[rows] - _apply_rows(system, rows, solution)
+        if block.columns.size:
+            local = _columns_at(system, rows, block.columns)
+            w = np.sqrt(system.weights[rows])
             coef, *_ = np.linalg.lstsq(local * w[:, None], r * w, rcond=None)
             r = r - local @ coef
-        residual[mask] = r
+        residual[rows] = r
     return _summarise("leave-one-line-out", residual, readings)
+
+
+def _apply_rows(system: LinearSystem, rows: IntArray, solution: FloatArray) -> FloatArray:
+    """A·x for the readings ``rows``."""
+    p_t = system.target_design.shape[1]
+    targets = system.target_of_reading[rows]
+    out = system.target_design[targets] @ solution[:p_t]
+    if system.effect_design.shape[1]:
+        out = out + system.effect_design[rows] @ solution[p_t:]
+    return np.asarray(out)
+
+
+def _columns_at(system: LinearSystem, rows: IntArray, columns: IntArray) -> FloatArray:
+    """Dense values of the design ``columns`` at the readings ``rows``."""
+    p_t = system.target_design.shape[1]
+    target = columns[columns < p_t]
+    effect = columns[columns >= p_t] - p_t
+    parts = []
+    if target.size:
+        parts.append(system.target_design[system.target_of_reading[rows]][:, target].toarray())
+    if effect.size:
+        parts.append(system.effect_design[np.ix_(rows, effect)])
+    out = np.hstack(parts)
+    # back to the order of ``columns``
+    stacked = np.concatenate([np.flatnonzero(columns < p_t), np.flatnonzero(columns >= p_t)])
+    order = np.argsort(stacked)
+    return np.asarray(out[:, order])
 
 
 #: Length of travel held out together in block cross-validation (a third of the default
@@ -945,6 +1318,9 @@ def _cross_validate_blocks(
     shifted from line to line: a fold never empties a region of the stroke that only one line
     sees (which would leave local basis functions undetermined), while a structure spanning a
     block still has to be predicted from its neighbours and the other lines.
+
+    Each fold is the minimum-norm (column-scaled) least-squares fit of the readings it keeps,
+    solved line by line like identification.
     """
     residual = np.empty(len(readings))
     fold_of = np.zeros(len(readings), dtype=int)
@@ -952,17 +1328,26 @@ def _cross_validate_blocks(
         mask = readings.line == index
         block = np.floor(readings.target_mm[mask] / BLOCK_MM).astype(int)
         fold_of[mask] = (block + index) % folds
-    rows_all = system.design_rows()
-    w_all = system.weights
+    own = system.own_columns()
     for k in range(folds):
         held = fold_of == k
-        rows = rows_all[held]
-        wr = rows * w_all[held, None]
-        m = system.normal - rows.T @ wr
-        b = system.rhs - wr.T @ system.y[held]
-        pinv, *_ = _scaled_pinv(m)
-        x = pinv @ b
-        residual[held] = system.y[held] - rows @ x
+        keep = ~held
+
+        def part(index: int, keep: NDArray[np.bool_] = keep) -> LinePart:
+            return system.line_part(index, keep)
+
+        normal = np.zeros_like(system.normal)
+        for index in range(system.lines):
+            p = part(index)
+            normal[np.ix_(p.columns, p.columns)] += p.normal
+        scale = _column_scale(normal)
+        limit = _rank_limit(normal, scale)
+        del normal
+        elimination = Elimination.of(part, own, system.size, scale, limit)
+        null = elimination.null_space(limit)
+        x = ConstrainedSystem.of(elimination, null.vectors).solve() * scale
+        rows = np.flatnonzero(held)
+        residual[held] = system.y[held] - _apply_rows(system, rows, x)
     return _summarise("held-out blocks of targets", residual, readings)
 
 
