@@ -44,6 +44,7 @@ from .identify_blocks import (
     Elimination,
     LinePart,
     NullSpace,
+    downdate,
     largest_eigenvalue,
     largest_leverage,
     line_schur,
@@ -272,6 +273,8 @@ class LinearSystem:
     reading_bounds: NDArray[np.int64]
     #: the effects' separable directions (see :func:`separable_reduction`), if restricted
     reduction: Reduction | None = None
+    #: each line's part once built (:meth:`line_part`): a small dense block per line
+    _parts: list[LinePart | None] = field(default_factory=list, init=False, repr=False)
 
     def reduced(self) -> LinearSystem:
         """The same least-squares problem in the reduced unknowns (effects restricted to their
@@ -333,7 +336,17 @@ class LinearSystem:
 
     def line_part(self, line: int, keep: NDArray[np.bool_] | None = None) -> LinePart:
         """The line's contribution to the normal equations, on the columns it touches: from its
-        readings (those in ``keep`` only, if given)."""
+        readings (those in ``keep`` only, if given). Built once and kept (for all readings)."""
+        if keep is not None:
+            return self._build_part(line, keep)
+        if not self._parts:
+            self._parts = [None] * self.lines
+        part = self._parts[line]
+        if part is None:
+            part = self._parts[line] = self._build_part(line, None)
+        return part
+
+    def _build_part(self, line: int, keep: NDArray[np.bool_] | None) -> LinePart:
         columns, block = self.line_rows(line)
         readings = self.line_readings(line)
         if keep is not None:
@@ -379,6 +392,9 @@ class LinearSystem:
                 self.reading_order,
                 self.reading_bounds,
             )
+        )
+        by_line += sum(
+            p.columns.nbytes + p.normal.nbytes + p.rhs.nbytes for p in self._parts if p is not None
         )
         return {"lines": int(by_line), "normal": int(self.normal.nbytes + self.rhs.nbytes)}
 
@@ -545,6 +561,17 @@ class _Subspace:
 
 #: Ridge added to the column-scaled normal matrix of a leave-one-line-out fit.
 RIDGE = 1e-11
+
+#: Leave-one-line-out updates the full fit (Woodbury) when the reduced matrix's eigenvalues
+#: span less than this ratio, and solves each fit otherwise: the update's rounding grows with
+#: the ratio, 1e-16 / 1e-6 = 1e-10 of the solution here.
+WOODBURY_CONDITION = 1e-6
+
+
+def _spd_inverse(matrix: FloatArray) -> FloatArray:
+    """Inverse of a symmetric positive definite matrix (the pseudo-inverse if rounding left it
+    indefinite)."""
+    return _spd_solve(matrix.copy(), np.eye(matrix.shape[0]))
 
 
 def _spd_solve(matrix: FloatArray, rhs: FloatArray) -> FloatArray:
@@ -1009,7 +1036,7 @@ def _without_effects(system: LinearSystem) -> LinearSystem:
     size = min((b.columns.start for b in system.blocks if b.kind == "effect"), default=system.size)
     if size == system.size:
         return system
-    return replace(
+    out = replace(
         system,
         blocks=[b for b in system.blocks if b.kind != "effect"],
         normal=system.normal[:size, :size],
@@ -1017,6 +1044,18 @@ def _without_effects(system: LinearSystem) -> LinearSystem:
         effect_design=np.zeros((len(system.target_of_reading), 0)),
         reduction=None,
     )
+    # the parts without the effects' columns (which come last)
+    out._parts = [
+        None
+        if p is None
+        else LinePart(
+            p.columns[p.columns < size],
+            p.normal[np.ix_(p.columns < size, p.columns < size)],
+            p.rhs[p.columns < size],
+        )
+        for p in system._parts
+    ]
+    return out
 
 
 def identify(
@@ -1242,13 +1281,19 @@ def cross_validate(
     # columns left out) with a ridge of RIDGE on the column-scaled diagonal. The ridge scales
     # with the diagonal *without* the line, which on the columns the line touches is the full
     # diagonal less the line's. With every line's own columns eliminated (ridge included), that
-    # is the reduced matrix less the line's Schur part, solved by Cholesky as solve_normal does:
-    # the ridged directions the plan barely sees (eigenvalues near RIDGE) make an update by the
-    # Woodbury identity lose digits there.
+    # is the reduced matrix R less the line's Schur part S. When R is well conditioned, the
+    # Woodbury identity updates the full solution on the columns the line touches; when the plan
+    # leaves directions unseen (held by the ridge alone), forming R⁻¹ would lose the digits of
+    # those directions, and R − S is solved by Cholesky as solve_normal does.
     scale = _column_scale(system.normal)
     elimination = Elimination.of(
         system.line_part, system.own_columns(), system.size, scale, 0.0, ridge=RIDGE
     )
+    values = np.linalg.eigvalsh(elimination.reduced)
+    inverse = None
+    if values.size and values[0] > WOODBURY_CONDITION * values[-1]:
+        inverse = _spd_inverse(elimination.reduced)
+        x = inverse @ elimination.reduced_rhs  # scaled, on the global columns
     residual = np.empty(len(readings))
     for index in range(len(names)):
         block = elimination.lines[index]
@@ -1258,11 +1303,14 @@ def cross_validate(
         global_part = ~np.isin(part.columns, block.columns)
         diagonal = np.diag(part.normal)[global_part] * scale[part.columns[global_part]] ** 2
         schur[np.diag_indices_from(schur)] += RIDGE * diagonal
-        matrix = elimination.reduced.copy()
-        matrix[np.ix_(touched, touched)] -= schur
-        right = elimination.reduced_rhs.copy()
-        right[touched] -= rhs
-        without = _spd_solve(matrix, right)[touched]
+        if inverse is not None:
+            without = downdate(inverse[np.ix_(touched, touched)], schur, rhs, x[touched])
+        else:
+            matrix = elimination.reduced.copy()
+            matrix[np.ix_(touched, touched)] -= schur
+            right = elimination.reduced_rhs.copy()
+            right[touched] -= rhs
+            without = _spd_solve(matrix, right)[touched]
         columns = elimination.glob[touched]
         solution = np.zeros(system.size)
         solution[columns] = without * scale[columns]

@@ -27,7 +27,7 @@ defined.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -138,6 +138,7 @@ class Elimination:
     reduced_rhs: FloatArray
     lines: list[OwnBlock]
     _eigen: tuple[FloatArray, FloatArray] | None = None
+    _pinv: dict[float, FloatArray] = field(default_factory=dict)
 
     @classmethod
     def of(
@@ -219,10 +220,12 @@ class Elimination:
 
     def reduced_pinv(self, limit: float) -> FloatArray:
         """The reduced matrix's pseudo-inverse on its eigenvalues above ``limit``."""
-        values, vectors = self.eigen
-        keep = values > limit
-        kept = vectors[:, keep]
-        return np.asarray((kept / values[keep]) @ kept.T)
+        if limit not in self._pinv:
+            values, vectors = self.eigen
+            keep = values > limit
+            kept = vectors[:, keep]
+            self._pinv[limit] = np.asarray((kept / values[keep]) @ kept.T)
+        return self._pinv[limit]
 
     def null_space(self, limit: float) -> NullSpace:
         """The null space of the whole normal matrix (scaled coordinates): each null vector of
