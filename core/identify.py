@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 from scipy import sparse
-from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg import cho_factor, cho_solve, cholesky, solve_triangular
 
 from .errors import (
     AXIS_ERROR_IDS,
@@ -37,6 +37,7 @@ from .errors import (
     Basis,
     BSplineBasis,
     ErrorModel,
+    axis_error_ids,
     gauge_null_space,
 )
 from .identify_blocks import (
@@ -44,12 +45,11 @@ from .identify_blocks import (
     Elimination,
     LinePart,
     NullSpace,
-    downdate,
     largest_eigenvalue,
     largest_leverage,
     line_schur,
 )
-from .kinematics import VolumetricModel, jacobian, rotation_error
+from .kinematics import VolumetricModel, error_value_jacobian, rotation_error
 from .machine import AXES, AXIS_INDEX, Machine
 from .measurement import Measurement
 from .progress import CancelToken, ProgressCallback, check, report
@@ -275,6 +275,10 @@ class LinearSystem:
     reduction: Reduction | None = None
     #: each line's part once built (:meth:`line_part`): a small dense block per line
     _parts: list[LinePart | None] = field(default_factory=list, init=False, repr=False)
+    #: eliminations of the lines' own columns already made (see :func:`_eliminate`)
+    _eliminations: dict[tuple[str, ...], tuple[Elimination, float]] = field(
+        default_factory=dict, init=False, repr=False
+    )
 
     def reduced(self) -> LinearSystem:
         """The same least-squares problem in the reduced unknowns (effects restricted to their
@@ -435,13 +439,16 @@ def _rank_limit(normal: FloatArray, scale: FloatArray) -> float:
 def _eliminate(
     system: LinearSystem, kinds: tuple[str, ...] = ("offset", "slope", "effect")
 ) -> tuple[Elimination, float]:
-    """The system with every line's own columns eliminated, and the rank limit."""
-    scale = _column_scale(system.normal)
-    limit = _rank_limit(system.normal, scale)
-    return (
-        Elimination.of(system.line_part, system.own_columns(kinds), system.size, scale, limit),
-        limit,
-    )
+    """The system with every line's own columns eliminated, and the rank limit (made once per
+    system: the subspace, the rank analysis and the first solve share it)."""
+    if kinds not in system._eliminations:
+        scale = _column_scale(system.normal)
+        limit = _rank_limit(system.normal, scale)
+        elimination = Elimination.of(
+            system.line_part, system.own_columns(kinds), system.size, scale, limit
+        )
+        system._eliminations[kinds] = (elimination, limit)
+    return system._eliminations[kinds]
 
 
 def _scaled_pinv(normal: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
@@ -541,6 +548,15 @@ class _Subspace:
 
     def restrict(self, system: LinearSystem) -> ConstrainedSystem:
         """The least-squares problem of ``system`` restricted to the subspace."""
+        made = system._eliminations.get(("offset", "slope", "effect"))
+        if (
+            made is not None
+            and np.array_equal(made[0].scale, self.scale)
+            and not any(u.shape[1] for u in self.null.own)
+            and not any(b.null.shape[1] for b in made[0].lines)
+        ):
+            # the system the subspace was found on: its elimination is this one
+            return ConstrainedSystem.of(made[0], self.null.vectors)
         elimination = Elimination.of(
             system.line_part,
             system.own_columns(),
@@ -561,17 +577,6 @@ class _Subspace:
 
 #: Ridge added to the column-scaled normal matrix of a leave-one-line-out fit.
 RIDGE = 1e-11
-
-#: Leave-one-line-out updates the full fit (Woodbury) when the reduced matrix's eigenvalues
-#: span less than this ratio, and solves each fit otherwise: the update's rounding grows with
-#: the ratio, 1e-16 / 1e-6 = 1e-10 of the solution here.
-WOODBURY_CONDITION = 1e-6
-
-
-def _spd_inverse(matrix: FloatArray) -> FloatArray:
-    """Inverse of a symmetric positive definite matrix (the pseudo-inverse if rounding left it
-    indefinite)."""
-    return _spd_solve(matrix.copy(), np.eye(matrix.shape[0]))
 
 
 def _spd_solve(matrix: FloatArray, rhs: FloatArray) -> FloatArray:
@@ -699,15 +704,30 @@ class Gauge:
 
 def _geometric_rows(model: ErrorModel, targets: _Targets) -> FloatArray:
     """d(reading)/d(model parameters) per target (T, P): exact chain for displacement optics,
-    the first-order sum of the axes' angles for angular optics."""
+    the first-order sum of the axes' angles for angular optics.
+
+    The chain's derivatives with respect to each error's *value* (T × 3 × 6 per axis) are
+    projected on the optics first and then spread over the error's basis functions, so nothing
+    of size T × 3 × P is formed."""
     rows = np.zeros((len(targets.line), model.parameter_count))
     angular = targets.quantity == QUANTITY_CODE["angular"]
     disp = ~angular
+    slices = model.parameter_slices
     if disp.any():
-        jac = jacobian(model, targets.position_mm[disp], targets.reflector_mm[disp])
-        rows[disp] = np.einsum("nc,ncp->np", targets.projection[disp], jac)
+        q = targets.position_mm[disp]
+        w = targets.projection[disp]
+        per_axis, squareness = error_value_jacobian(model, q, targets.reflector_mm[disp])
+        block = np.zeros((len(q), model.parameter_count))
+        for axis in AXES:
+            k = AXIS_INDEX[axis]
+            along = np.einsum("nc,ncj->nj", w, per_axis[axis])  # d(reading)/d(error value)
+            for j, eid in enumerate(axis_error_ids(axis)):
+                design = model.functions[eid].basis.design(q[:, k])
+                block[:, slices[eid]] = along[:, j, None] * design
+        for sid in SQUARENESS_IDS:
+            block[:, slices[sid].start] = np.einsum("nc,nc->n", w, squareness[sid])
+        rows[disp] = block
     if angular.any():
-        slices = model.parameter_slices
         q = targets.position_mm[angular]
         w = targets.projection[angular]
         block = np.zeros((int(angular.sum()), model.parameter_count))
@@ -718,6 +738,18 @@ def _geometric_rows(model: ErrorModel, targets: _Targets) -> FloatArray:
                 block[:, slices[eid]] += w[:, j, None] * design
         rows[angular] = block
     return rows
+
+
+def _gauge_rows(rows: FloatArray, model: ErrorModel, gauge: Gauge) -> FloatArray:
+    """rows · N (T × G) by the gauge map's diagonal blocks (one per error), skipping the errors
+    these rows do not move."""
+    out = np.zeros((rows.shape[0], gauge.size))
+    slices = model.parameter_slices
+    for eid in ERROR_IDS:
+        part = rows[:, slices[eid]]
+        if np.any(part):
+            out[:, gauge.blocks[eid]] = part @ gauge.matrix[slices[eid], gauge.blocks[eid]]
+    return out
 
 
 def predict_geometric(model: ErrorModel, targets: _Targets) -> FloatArray:
@@ -744,8 +776,8 @@ class EffectTerm:
         raise NotImplementedError
 
 
-#: Targets whose Jacobian (targets × 3 × parameters) is built at once: about 50 MB of it.
-_JACOBIAN_ENTRIES = 2_000_000
+#: Target rows (targets × parameters) built at once: about 32 MB of them.
+_ROW_ENTRIES = 4_000_000
 
 
 @dataclass(frozen=True, eq=False)
@@ -760,7 +792,7 @@ class GeometricDesign:
     def of(
         cls, model: ErrorModel, targets: _Targets, gauge: Gauge, bounds: IntArray
     ) -> GeometricDesign:
-        budget = max(1, _JACOBIAN_ENTRIES // max(model.parameter_count, 1))
+        budget = max(1, _ROW_ENTRIES // max(model.parameter_count, 1))
         lines = len(bounds) - 1
         columns: list[IntArray] = []
         rows: list[FloatArray] = []
@@ -770,7 +802,7 @@ class GeometricDesign:
             while last < lines and bounds[last + 1] - bounds[first] <= budget:
                 last += 1
             a = bounds[first]
-            geo = _geometric_rows(model, targets.rows(a, bounds[last])) @ gauge.matrix
+            geo = _gauge_rows(_geometric_rows(model, targets.rows(a, bounds[last])), model, gauge)
             for line in range(first, last):
                 sub = geo[bounds[line] - a : bounds[line + 1] - a]
                 touched = np.flatnonzero(np.any(sub != 0.0, axis=0))
@@ -1270,8 +1302,9 @@ def cross_validate(
     alignment are unknown for a line never seen. When some lines are not redundant (leaving them
     out loses rank), held-out contiguous blocks of targets are used instead.
 
-    The fit without a line is the full fit downdated by the line's part on the reduced system
-    (its own columns eliminated), on the columns the line touches: no refit per line.
+    The fit without a line is the reduced system (every line's own columns eliminated) less
+    the line's part, condensed on the columns the line touches: no refit of the whole system per
+    line.
     """
     system = system.reduced()
     names = [line.name for line in readings.lines]
@@ -1281,48 +1314,90 @@ def cross_validate(
     # columns left out) with a ridge of RIDGE on the column-scaled diagonal. The ridge scales
     # with the diagonal *without* the line, which on the columns the line touches is the full
     # diagonal less the line's. With every line's own columns eliminated (ridge included), that
-    # is the reduced matrix R less the line's Schur part S. When R is well conditioned, the
-    # Woodbury identity updates the full solution on the columns the line touches; when the plan
-    # leaves directions unseen (held by the ridge alone), forming R⁻¹ would lose the digits of
-    # those directions, and R − S is solved by Cholesky as solve_normal does.
+    # is the reduced matrix R less the line's Schur part S on the columns t the line touches,
+    # solved by Cholesky as solve_normal does: the columns f it does not touch are eliminated
+    # first, once for all the lines that touch the same columns (lines of one direction and
+    # kind), leaving (Σ_t − S) x_t = c_t − c_l with Σ_t = R_tt − R_tf R_ff⁻¹ R_ft. (Forming R⁻¹
+    # for a Woodbury update instead would lose the digits of the directions that only the ridge
+    # holds, which plans that leave errors unseen have.)
     scale = _column_scale(system.normal)
     elimination = Elimination.of(
         system.line_part, system.own_columns(), system.size, scale, 0.0, ridge=RIDGE
     )
-    values = np.linalg.eigvalsh(elimination.reduced)
-    inverse = None
-    if values.size and values[0] > WOODBURY_CONDITION * values[-1]:
-        inverse = _spd_inverse(elimination.reduced)
-        x = inverse @ elimination.reduced_rhs  # scaled, on the global columns
+    # lines are grouped by the blocks (errors, effects) they touch; a group is condensed once on
+    # the union of its lines' columns
+    block_of = np.zeros(system.size, dtype=np.int64)
+    for number, b in enumerate(system.blocks):
+        block_of[b.columns] = number
+    groups: dict[bytes, list[int]] = {}
+    for index, block in enumerate(elimination.lines):
+        signature = np.unique(block_of[elimination.glob[block.touched]]).tobytes()
+        groups.setdefault(signature, []).append(index)
     residual = np.empty(len(readings))
-    for index in range(len(names)):
-        block = elimination.lines[index]
-        touched = block.touched
-        part = system.line_part(index)
-        schur, rhs = line_schur(block, part, scale)
-        global_part = ~np.isin(part.columns, block.columns)
-        diagonal = np.diag(part.normal)[global_part] * scale[part.columns[global_part]] ** 2
-        schur[np.diag_indices_from(schur)] += RIDGE * diagonal
-        if inverse is not None:
-            without = downdate(inverse[np.ix_(touched, touched)], schur, rhs, x[touched])
-        else:
-            matrix = elimination.reduced.copy()
-            matrix[np.ix_(touched, touched)] -= schur
-            right = elimination.reduced_rhs.copy()
-            right[touched] -= rhs
-            without = _spd_solve(matrix, right)[touched]
-        columns = elimination.glob[touched]
-        solution = np.zeros(system.size)
-        solution[columns] = without * scale[columns]
-        rows = system.line_readings(index)
-        r = system.y[rows] - _apply_rows(system, rows, solution)
-        if block.columns.size:
-            local = _columns_at(system, rows, block.columns)
-            w = np.sqrt(system.weights[rows])
-            coef, *_ = np.linalg.lstsq(local * w[:, None], r * w, rcond=None)
-            r = r - local @ coef
-        residual[rows] = r
+    for members in groups.values():
+        union = np.unique(np.concatenate([elimination.lines[i].touched for i in members]))
+        sigma, c_t = _condensed(elimination, union)
+        for index in members:
+            _leave_out(system, elimination, index, union, sigma, c_t, residual)
     return _summarise("leave-one-line-out", residual, readings)
+
+
+def _condensed(elimination: Elimination, touched: IntArray) -> tuple[FloatArray, FloatArray]:
+    """The reduced system condensed on the columns ``touched`` (the others eliminated by
+    Cholesky): Σ_t = R_tt − R_tf R_ff⁻¹ R_ft and c_t − R_tf R_ff⁻¹ c_f."""
+    reduced, rhs = elimination.reduced, elimination.reduced_rhs
+    free = np.setdiff1d(np.arange(reduced.shape[0]), touched)
+    sigma = reduced[np.ix_(touched, touched)]
+    c_t = rhs[touched]
+    if free.size == 0:
+        return sigma, c_t
+    try:
+        factor = cholesky(reduced[np.ix_(free, free)], lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        pinv = np.linalg.pinv(reduced[np.ix_(free, free)], hermitian=True)
+        cross = reduced[np.ix_(free, touched)]
+        return sigma - cross.T @ pinv @ cross, c_t - cross.T @ (pinv @ rhs[free])
+    w = solve_triangular(factor, reduced[np.ix_(free, touched)], lower=True, check_finite=False)
+    z = solve_triangular(factor, rhs[free], lower=True, check_finite=False)
+    return sigma - w.T @ w, c_t - w.T @ z
+
+
+def _leave_out(
+    system: LinearSystem,
+    elimination: Elimination,
+    index: int,
+    union: IntArray,
+    sigma: FloatArray,
+    c_t: FloatArray,
+    residual: FloatArray,
+) -> None:
+    """The cross-validated residual of one line, from the system condensed on ``union`` (the
+    columns it touches and perhaps others)."""
+    scale = elimination.scale
+    block = elimination.lines[index]
+    touched = block.touched
+    part = system.line_part(index)
+    schur, rhs = line_schur(block, part, scale)
+    global_part = ~np.isin(part.columns, block.columns)
+    diagonal = np.diag(part.normal)[global_part] * scale[part.columns[global_part]] ** 2
+    schur[np.diag_indices_from(schur)] += RIDGE * diagonal
+    where = np.searchsorted(union, touched)
+    matrix = sigma.copy()
+    matrix[np.ix_(where, where)] -= schur
+    right = c_t.copy()
+    right[where] -= rhs
+    without = _spd_solve(matrix, right)
+    columns = elimination.glob[union]
+    solution = np.zeros(system.size)
+    solution[columns] = without * scale[columns]
+    rows = system.line_readings(index)
+    r = system.y[rows] - _apply_rows(system, rows, solution)
+    if block.columns.size:
+        local = _columns_at(system, rows, block.columns)
+        w = np.sqrt(system.weights[rows])
+        coef, *_ = np.linalg.lstsq(local * w[:, None], r * w, rcond=None)
+        r = r - local @ coef
+    residual[rows] = r
 
 
 def _apply_rows(system: LinearSystem, rows: IntArray, solution: FloatArray) -> FloatArray:

@@ -16,8 +16,8 @@ the number of unknowns:
 - the least-squares solution restricted to a subspace (the identifiable directions fixed at the
   first linearisation) and the matching (AᵀWA)⁺: an equality-constrained (KKT) system whose own
   blocks are eliminated line by line in the same way;
-- leave-one-line-out fits by downdating the reduced system with one line's Schur part (a
-  Woodbury update on the columns the line touches), and the rank test of a line (its leverage).
+- leave-one-line-out fits by downdating the reduced system with one line's Schur part, and the
+  rank test of a line (its leverage: the eigenvalues of its part against the reduced matrix).
 
 Everything here works in column-scaled coordinates (x = scale · x_s, each column of A scaled to
 unit norm, as :func:`volucal.core.identify._column_scale` does), where the rank tolerance is
@@ -159,10 +159,10 @@ class Elimination:
         with a ``ridge``, ridge·I is added to every (scaled) diagonal, own and global, and the own
         blocks are inverted as they are.
         """
-        is_own = np.zeros(size, dtype=bool)
-        for columns in own:
-            is_own[columns] = True
-        glob = np.flatnonzero(~is_own)
+        owner = np.full(size, -1, dtype=np.int64)
+        for index, columns in enumerate(own):
+            owner[columns] = index
+        glob = np.flatnonzero(owner < 0)
         position = np.full(size, -1, dtype=np.int64)
         position[glob] = np.arange(glob.size)
         reduced = np.zeros((glob.size, glob.size))
@@ -171,27 +171,23 @@ class Elimination:
         for index, own_columns in enumerate(own):
             part = parts(index)
             s = scale[part.columns]
-            normal = part.normal * s[:, None] * s[None, :]
+            normal = part.normal * np.outer(s, s)
             rhs = part.rhs * s
-            is_mine = np.isin(part.columns, own_columns)
-            foreign = is_own[part.columns] & ~is_mine
-            if foreign.any():
-                raise ValueError(
-                    f"line {index} touches another line's own column(s) "
-                    f"{part.columns[foreign].tolist()}"
-                )
-            g = np.flatnonzero(~is_mine)
+            mine = owner[part.columns]
+            if np.any((mine >= 0) & (mine != index)):
+                raise ValueError(f"line {index} touches another line's own columns")
+            g = np.flatnonzero(mine < 0)
             # own columns in the order given; those the part does not touch stay zero
             where = np.searchsorted(part.columns, own_columns)
-            where = np.minimum(where, max(part.columns.size - 1, 0))
-            present = (part.columns.size > 0) & (part.columns[where] == own_columns)
+            present = where < part.columns.size
+            present[present] = part.columns[where[present]] == own_columns[present]
             o = own_columns.size
+            p = np.flatnonzero(present)
             n_oo = np.zeros((o, o))
             n_og = np.zeros((o, g.size))
             b_o = np.zeros(o)
-            p = np.flatnonzero(present)
             n_oo[np.ix_(p, p)] = normal[np.ix_(where[p], where[p])]
-            n_og[p] = normal[np.ix_(where[p], g)]
+            n_og[p] = normal[where[p]][:, g]
             b_o[p] = rhs[where[p]]
             if ridge:
                 inverse = np.linalg.inv(n_oo + ridge * np.eye(o)) if o else np.zeros((0, 0))
@@ -203,8 +199,11 @@ class Elimination:
                 inverse = _constrained_inverse(n_oo, null)
             y = inverse @ n_og
             touched = position[part.columns[g]]
-            schur = normal[np.ix_(g, g)] - n_og.T @ y
-            reduced[np.ix_(touched, touched)] += schur
+            if g.size and g[-1] == g.size - 1:  # the global columns come first (no effects)
+                n_gg = normal[: g.size, : g.size]
+            else:
+                n_gg = normal[np.ix_(g, g)]
+            reduced[np.ix_(touched, touched)] += n_gg - n_og.T @ y
             reduced_rhs[touched] += rhs[g] - n_og.T @ (inverse @ b_o)
             lines.append(OwnBlock(own_columns, touched, n_oo, n_og, b_o, inverse, null))
         reduced[np.diag_indices_from(reduced)] += ridge
@@ -389,23 +388,6 @@ def line_schur(block: OwnBlock, part: LinePart, scale: FloatArray) -> tuple[Floa
     return schur, rhs
 
 
-def downdate(
-    pinv_touched: FloatArray, schur: FloatArray, rhs: FloatArray, x_touched: FloatArray
-) -> FloatArray:
-    """The reduced solution without one line, on the columns it touches (scaled).
-
-    With R x = c the full reduced system and S, c_l the line's part: (R − S) x' = c − c_l gives
-    x' = x + (R − S)⁺(S x − c_l), and the Woodbury identity on the touched columns t reduces the
-    update to (I − Q_tt S)⁻¹ Q_tt (S x_t − c_l) with Q = R⁺ (valid when leaving the line out
-    does not lose rank: the line is redundant).
-    """
-    k = schur.shape[0]
-    if k == 0:
-        return x_touched
-    v = pinv_touched @ (schur @ x_touched - rhs)
-    return np.asarray(x_touched + np.linalg.solve(np.eye(k) - pinv_touched @ schur, v))
-
-
 def largest_leverage(rows: FloatArray, pinv_touched: FloatArray) -> float:
     """Largest eigenvalue of H = F Q_tt Fᵀ for a line's weighted, own-projected rows F (n × t):
     1 when leaving the line out loses rank, below 1 otherwise."""
@@ -423,7 +405,6 @@ __all__ = [
     "Elimination",
     "LinePart",
     "NullSpace",
-    "downdate",
     "largest_eigenvalue",
     "largest_leverage",
     "line_schur",
