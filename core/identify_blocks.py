@@ -189,8 +189,12 @@ class Elimination:
             n_oo[np.ix_(p, p)] = normal[np.ix_(where[p], where[p])]
             n_og[p] = normal[where[p]][:, g]
             b_o[p] = rhs[where[p]]
+            inverse: FloatArray
             if ridge:
-                inverse = np.linalg.inv(n_oo + ridge * np.eye(o)) if o else np.zeros((0, 0))
+                inverse = np.asarray(
+                    np.linalg.inv(n_oo + ridge * np.eye(o)) if o else np.zeros((0, 0)),
+                    dtype=np.float64,
+                )
                 null = np.zeros((o, 0))
             elif own_null is None:
                 inverse, null = _own_inverse(n_oo, limit)
@@ -395,7 +399,7 @@ def largest_leverage(rows: FloatArray, pinv_touched: FloatArray) -> float:
         return 0.0
     if rows.shape[0] > rows.shape[1]:
         # the same non-zero eigenvalues from the t × t factor F = Q_F R_F
-        rows = np.linalg.qr(rows, mode="r")
+        rows = np.asarray(np.linalg.qr(rows, mode="r"))
     h = rows @ pinv_touched @ rows.T
     return float(np.linalg.eigvalsh(0.5 * (h + h.T))[-1])
 

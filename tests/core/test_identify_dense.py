@@ -13,18 +13,17 @@ import numpy as np
 import pytest
 from volucal.core import effects as fx
 from volucal.core import plans
+from volucal.core.cross_validation import RIDGE
 from volucal.core.identify import (
     RANK_TOLERANCE,
-    RIDGE,
     SEPARABILITY,
     Gauge,
     IdentifyOptions,
-    _column_scale,
-    _eliminate,
     cross_validate,
     identify,
     separable_reduction,
 )
+from volucal.core.identify_system import column_scale, eliminate
 from volucal.core.machine import AXES, AXIS_INDEX, PAPER_MACHINE
 from volucal.core.measurement import LineSpec, Measurement
 from volucal.core.plans import PlannedLine
@@ -49,7 +48,7 @@ def _dense_normal(system):  # type: ignore[no-untyped-def]
 
 
 def _scaled_eigen(normal):  # type: ignore[no-untyped-def]
-    scale = _column_scale(normal)
+    scale = column_scale(normal)
     values, vectors = np.linalg.eigh(normal * scale[:, None] * scale[None, :])
     limit = RANK_TOLERANCE * max(values.max(), 1e-300)
     return scale, values, vectors, limit
@@ -126,7 +125,7 @@ def test_rank_null_space_and_redundant_lines_equal_the_dense_tests() -> None:
     _, normal, _ = _dense_normal(system)
     scale, values, vectors, limit = _scaled_eigen(normal)
     assert result.identifiability.rank == int(np.sum(values > limit))
-    elimination, limit_blocks = _eliminate(system)
+    elimination, limit_blocks = eliminate(system)
     null = elimination.null_space(limit_blocks).orthonormal()
     dense_null = vectors[:, values <= limit]
     assert null.shape == dense_null.shape
@@ -170,7 +169,7 @@ def test_effects_reduced_to_their_separable_directions_as_the_dense_schur_comple
     assert reduction is not None
     # dense: per effect, the Schur complement of its scaled columns against the rigid ones
     rigid = system.target_design.shape[1]
-    scale = _column_scale(normal)
+    scale = column_scale(normal)
     scaled = normal * scale[:, None] * scale[None, :]
     values, vectors = np.linalg.eigh(scaled[:rigid, :rigid])
     seen = values > RANK_TOLERANCE * values.max()
@@ -256,7 +255,7 @@ def test_leave_one_line_out_equals_the_dense_ridged_solve() -> None:
         m = normal - (rows * system.weights[mask, None]).T @ rows
         b = rhs - (rows * system.weights[mask, None]).T @ system.y[mask]
         m, b = m[np.ix_(keep, keep)], b[keep]
-        scale = _column_scale(m)
+        scale = column_scale(m)
         scaled = m * scale[:, None] * scale[None, :] + RIDGE * np.eye(keep.size)
         x = np.zeros(system.size)
         x[keep] = np.linalg.solve(scaled, b * scale) * scale
