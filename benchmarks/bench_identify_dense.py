@@ -8,13 +8,16 @@ Every case runs in its own Python process, so that its peak resident memory
 (``resource.getrusage(RUSAGE_SELF).ru_maxrss``) is its own; the figure includes the interpreter,
 numpy and the simulated measurement (printed separately as "baseline" RSS before identifying).
 
-Run: python benchmarks/bench_identify_dense.py [--case NAME ...] [--code DIR] [--cv]
+Run: python benchmarks/bench_identify_dense.py [--case NAME ...] [--code DIR] [--cv] [--cli]
 
 ``--code DIR`` runs the cases against another checkout of volucal (a folder holding a
 ``volucal`` package, e.g. ``git archive main | tar -x -C DIR/volucal``) to record the figures of
 the code before a change. ``--cv`` also times leave-one-line-out cross-validation. ``--cli``
 times ``volucal identify`` and ``volucal calibrate`` on the 200 lines × 400 targets × 10 runs
-plan written as a session (logs + plan.toml) in a temporary folder.
+plan written as a session (logs + plan.toml) in a temporary folder (alone unless cases are named).
+
+Timings depend on how the BLAS library threads: on a machine shared with other work, threaded
+BLAS calls wait for cores; ``OPENBLAS_NUM_THREADS=1`` gives the single-core figures.
 """
 
 from __future__ import annotations
@@ -326,7 +329,8 @@ def main() -> None:
     env = dict(os.environ)
     if args.code:
         env["PYTHONPATH"] = os.pathsep.join([str(args.code.resolve()), env.get("PYTHONPATH", "")])
-    for name in args.case or list(CASES):
+    cases = args.case or ([] if args.cli else list(CASES))
+    for name in cases:
         command = [sys.executable, __file__, "--one", name] + (["--cv"] if args.cv else [])
         done = subprocess.run(command, env=env, capture_output=True, text=True)
         if done.returncode:
