@@ -82,7 +82,7 @@ class LinearSystem:
     reduction: Reduction | None = None
     #: each line's part once built, while :meth:`keeping_parts` is in effect
     _parts: list[LinePart | None] | None = field(default=None, init=False, repr=False)
-    #: eliminations of the lines' own columns already made (see :func:`_eliminate`)
+    #: eliminations of the lines' own columns already made (see :func:`eliminate`)
     _eliminations: dict[tuple[str, ...], tuple[Elimination, float]] = field(
         default_factory=dict, init=False, repr=False
     )
@@ -123,11 +123,20 @@ class LinearSystem:
         return np.concatenate(cols) if cols else np.empty(0, dtype=np.int64)
 
     def own_columns(self, kinds: tuple[str, ...] = ("offset", "slope", "effect")) -> list[IntArray]:
-        """Per line, the columns of the blocks of those ``kinds`` that act on that line only."""
+        """Per line, the columns of the blocks of those ``kinds`` that act on that line only (an
+        effect said to act on one line whose design reaches other readings is kept global)."""
         own: list[list[IntArray]] = [[] for _ in range(self.lines)]
+        p_t = self.target_design.shape[1]
         for b in self.blocks:
-            if b.line is not None and b.kind in kinds:
-                own[b.line].append(np.arange(b.columns.start, b.columns.stop))
+            if b.line is None or b.kind not in kinds:
+                continue
+            columns = np.arange(b.columns.start, b.columns.stop)
+            if b.kind == "effect":
+                design = self.effect_design[:, columns - p_t]
+                inside = np.count_nonzero(design[self.line_readings(b.line)], axis=0)
+                if np.any(np.count_nonzero(design, axis=0) != inside):
+                    continue
+            own[b.line].append(columns)
         return [np.concatenate(c) if c else np.empty(0, dtype=np.int64) for c in own]
 
     def line_readings(self, line: int) -> IntArray:

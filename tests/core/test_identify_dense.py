@@ -196,6 +196,29 @@ def test_effects_reduced_to_their_separable_directions_as_the_dense_schur_comple
     assert _relative(result.normal_inverse, r @ inverse @ r.T) < 1e-7
 
 
+class _LeakyScale:
+    """An effect declared to act on line 0 whose design also moves line 1: it cannot be
+    eliminated with line 0's own columns and must stay a column of the whole system."""
+
+    label = "scale of lines 0 and 1"
+    line_index = 0
+
+    def design(self, readings, model):  # type: ignore[no-untyped-def]
+        return np.where(readings.line <= 1, readings.target_mm * 1e-3, 0.0)[:, None]
+
+
+def test_an_effect_reaching_other_lines_stays_global() -> None:
+    measurement = _measure("full", seed=38)
+    result = identify(
+        measurement, IdentifyOptions(refine=False, redundancy=False), effects=[_LeakyScale()]
+    )
+    system = result.system.reduced()
+    assert all(c.size <= 2 for c in system.own_columns())  # offsets and slopes only
+    a, normal, rhs = _dense_normal(system)
+    x, _ = _dense_restricted(normal, rhs)
+    assert _relative(result.residual, system.y - a @ x) < 1e-7
+
+
 # --------------------------------------------------------------------------------------------
 # Cross-validation
 # --------------------------------------------------------------------------------------------
