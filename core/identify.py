@@ -16,7 +16,12 @@ The weighted least-squares problem is solved in normal-equation form with the ge
 evaluated once per target (runs at one target share it), then refined by Gauss–Newton on the exact
 chain until the update is far below the noise. Effects beyond the 21 errors (core/effects.py) add
 columns per reading. Rank, unidentifiable combinations and redundant lines come from the
-eigen-decomposition of the column-scaled normal matrix.
+column-scaled normal matrix's spectrum.
+
+Dense plans (hundreds of lines): the system is stored by line (core/identify_system.py), each
+line's own offset, slope and set-up effects are eliminated line by line, and everything is solved
+on the reduced system of the errors' columns (core/identify_blocks.py): time grows linearly with
+the lines and memory with the unknowns, never with lines × unknowns².
 """
 
 from __future__ import annotations
@@ -26,8 +31,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import cho_factor, cho_solve
 
+from .cross_validation import BLOCK_MM, CrossValidation, cross_validate
 from .errors import (
     AXIS_ERROR_IDS,
     ERROR_IDS,
@@ -36,20 +41,33 @@ from .errors import (
     Basis,
     BSplineBasis,
     ErrorModel,
-    gauge_null_space,
 )
-from .kinematics import VolumetricModel, jacobian, rotation_error
-from .machine import AXES, AXIS_INDEX, Machine
+from .identify_blocks import ConstrainedSystem, Elimination, NullSpace, largest_leverage, line_schur
+from .identify_system import (
+    RANK_TOLERANCE,
+    ColumnBlock,
+    EffectTerm,
+    Gauge,
+    GeometricDesign,
+    LinearSystem,
+    Reduction,
+    build_system,
+    column_scale,
+    eliminate,
+    expand_pair,
+    predict_geometric,
+    rank_limit,
+    unique_targets,
+    without_effects,
+)
+from .machine import Machine
 from .measurement import Measurement
 from .progress import CancelToken, ProgressCallback, check, report
-from .readings import QUANTITY_CODE, Readings, flatten
+from .readings import Readings, flatten
 from .userror import UserError
 
 FloatArray = NDArray[np.float64]
-
-#: Eigenvalues of the column-scaled normal matrix below this fraction of the largest are taken as
-#: zero: a direction whose singular value is 1e-6 of the strongest is not seen by the plan.
-RANK_TOLERANCE = 1e-12
+IntArray = NDArray[np.int64]
 
 
 class IdentificationError(UserError):
@@ -218,96 +236,8 @@ class Identification:
 
 
 # --------------------------------------------------------------------------------------------
-# The linear system
+# What the plan separates: effects' directions, the identifiable subspace
 # --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ColumnBlock:
-    kind: str  # "error", "offset", "slope", "effect"
-    key: str  # error id, line name or effect label
-    columns: slice
-    line: int | None = None  # the only line this block acts on, if any
-
-
-@dataclass(eq=False)
-class LinearSystem:
-    """Weighted least squares in normal-equation form with per-line contributions.
-
-    ``normal`` = AᵀWA and ``rhs`` = AᵀWy over all readings; ``line_normal[l]`` and
-    ``line_rhs[l]`` are the parts that line l contributes (for leave-one-line-out).
-    """
-
-    blocks: list[ColumnBlock]
-    normal: FloatArray
-    rhs: FloatArray
-    line_normal: list[FloatArray]
-    line_rhs: list[FloatArray]
-    target_design: FloatArray  # (T, p_target): geometric + nuisance columns per target
-    target_of_reading: NDArray[np.int64]
-    effect_design: FloatArray  # (n, p_effect)
-    y: FloatArray  # the (pseudo-)observations of this linearisation
-    weights: FloatArray
-    #: the effects' separable directions (see :func:`separable_reduction`), if restricted
-    reduction: Reduction | None = None
-
-    def reduced(self) -> LinearSystem:
-        """The same least-squares problem in the reduced unknowns (effects restricted to their
-        separable directions); itself when unrestricted."""
-        if self.reduction is None:
-            return self
-        r = self.reduction.matrix
-        rigid = self.target_design.shape[1]
-        blocks = [b for b in self.blocks if b.kind != "effect"] + list(self.reduction.blocks)
-        return LinearSystem(
-            blocks,
-            r.T @ self.normal @ r,
-            r.T @ self.rhs,
-            [r.T @ m @ r for m in self.line_normal],
-            [r.T @ b for b in self.line_rhs],
-            self.target_design,
-            self.target_of_reading,
-            self.effect_design @ r[rigid:, rigid:],
-            self.y,
-            self.weights,
-        )
-
-    @property
-    def size(self) -> int:
-        return self.normal.shape[0]
-
-    def design_rows(self, mask: NDArray[np.bool_] | None = None) -> FloatArray:
-        """Explicit rows of A for the readings in ``mask`` (all by default)."""
-        idx = self.target_of_reading if mask is None else self.target_of_reading[mask]
-        eff = self.effect_design if mask is None else self.effect_design[mask]
-        return np.hstack([self.target_design[idx], eff])
-
-    def line_columns(self, line: int) -> NDArray[np.int64]:
-        cols = [np.arange(b.columns.start, b.columns.stop) for b in self.blocks if b.line == line]
-        return np.concatenate(cols) if cols else np.empty(0, dtype=np.int64)
-
-
-def _column_scale(normal: FloatArray) -> FloatArray:
-    """1/‖column‖ for the columns of A (from AᵀA's diagonal); columns whose norm is below 1e-12
-    of the largest are rounding noise of an unseen parameter and are left unscaled, so that
-    they stay (numerically) zero instead of being blown up to unit size."""
-    diag = np.diag(normal).copy()
-    seen = diag > 1e-24 * max(float(diag.max(initial=0.0)), 1e-300)
-    return np.where(seen, 1.0 / np.sqrt(np.where(seen, diag, 1.0)), 1.0)
-
-
-def _scaled_pinv(normal: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Pseudo-inverse of a normal matrix via the column-scaled eigen-decomposition.
-
-    Returns (pinv, scale, eigenvalues, eigenvectors) in scaled coordinates.
-    """
-    scale = _column_scale(normal)
-    scaled = normal * scale[:, None] * scale[None, :]
-    values, vectors = np.linalg.eigh(scaled)
-    keep = values > RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
-    inv_values = np.where(keep, 1.0 / np.where(keep, values, 1.0), 0.0)
-    pinv_scaled = (vectors * inv_values) @ vectors.T
-    return pinv_scaled * scale[:, None] * scale[None, :], scale, values, vectors
 
 
 #: An effect direction is fitted only where more than this share of its signal (column-scaled)
@@ -317,40 +247,40 @@ def _scaled_pinv(normal: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray
 SEPARABILITY = 1e-6
 
 
-@dataclass(frozen=True, eq=False)
-class Reduction:
-    """The effects' unknowns restricted to what the plan tells apart from a rigid body.
-
-    ``matrix`` (P × P') maps the reduced unknowns to all of them: the identity on the 21 errors'
-    and the lines' columns (which come first), and for each effect the separable directions of
-    its columns. ``blocks`` are the effects' column blocks in the reduced unknowns.
-    """
-
-    matrix: FloatArray
-    blocks: tuple[ColumnBlock, ...]
-
-
 def separable_reduction(system: LinearSystem) -> Reduction | None:
     """Per effect, the eigenvectors of its Schur complement against the other columns (the
     information it does not share with the 21 errors and the nuisances), column-scaled, whose
-    eigenvalue reaches :data:`SEPARABILITY`; None without effects."""
+    eigenvalue reaches :data:`SEPARABILITY`; None without effects.
+
+    The lines' offsets and slopes are eliminated line by line; the Schur complement against the
+    21 errors is then taken on the (small) reduced system.
+    """
     effects = [b for b in system.blocks if b.kind == "effect"]
     if not effects:
         return None
     rigid = effects[0].columns.start  # effect columns come last
-    scale = _column_scale(system.normal)
-    scaled = system.normal * scale[:, None] * scale[None, :]
-    values, vectors = np.linalg.eigh(scaled[:rigid, :rigid])
-    seen = values > RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
+    scale = column_scale(system.normal)
+    limit = rank_limit(system.normal[:rigid, :rigid], scale[:rigid])
+    elimination = Elimination.of(
+        system.line_part, system.own_columns(("offset", "slope")), system.size, scale, limit
+    )
+    reduced = elimination.reduced
+    errors = np.flatnonzero(elimination.glob < rigid)
+    effect_positions = np.flatnonzero(elimination.glob >= rigid)  # every effect column, in order
+    values, vectors = np.linalg.eigh(reduced[np.ix_(errors, errors)])
+    seen = values > limit
     vectors, values = vectors[:, seen], values[seen]
+    projected = vectors.T @ reduced[np.ix_(errors, effect_positions)]
+    schur_all = reduced[np.ix_(effect_positions, effect_positions)] - projected.T @ (
+        projected / values[:, None]
+    )
     pieces = []
     blocks = []
     start = rigid
     for block in effects:
         columns = np.arange(block.columns.start, block.columns.stop)
-        projected = vectors.T @ scaled[:rigid, columns]
-        schur = scaled[np.ix_(columns, columns)] - projected.T @ (projected / values[:, None])
-        s_values, s_vectors = np.linalg.eigh(schur)
+        local = columns - rigid
+        s_values, s_vectors = np.linalg.eigh(schur_all[np.ix_(local, local)])
         kept = s_vectors[:, s_values > SEPARABILITY] * scale[columns][:, None]
         pieces.append((columns, kept))
         blocks.append(replace(block, columns=slice(start, start + kept.shape[1])))
@@ -365,75 +295,45 @@ def separable_reduction(system: LinearSystem) -> Reduction | None:
 @dataclass(frozen=True, eq=False)
 class _Subspace:
     """The identifiable subspace of a system, fixed in the column scaling of its first
-    linearisation: x = scale · basis · z."""
+    linearisation: the complement (in scaled coordinates) of its null space."""
 
     scale: FloatArray
-    basis: FloatArray  # (P, rank), orthonormal in scaled coordinates
+    null: NullSpace  # in the scaled coordinates of ``scale``
+    rank: int
 
     @classmethod
-    def of(cls, normal: FloatArray) -> _Subspace:
-        _, scale, values, vectors = _scaled_pinv(normal)
-        keep = values > RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
-        return cls(scale, vectors[:, keep])
+    def of(cls, system: LinearSystem) -> _Subspace:
+        elimination, limit = eliminate(system)
+        null = elimination.null_space(limit)
+        return cls(elimination.scale, null, system.size - null.dimensions)
 
-    def _reduced(self, normal: FloatArray) -> tuple[FloatArray, FloatArray]:
-        t = self.basis * self.scale[:, None]  # x = t z
-        return t, t.T @ normal @ t
+    def restrict(self, system: LinearSystem) -> ConstrainedSystem:
+        """The least-squares problem of ``system`` restricted to the subspace."""
+        made = system._eliminations.get(("offset", "slope", "effect"))
+        if (
+            made is not None
+            and np.array_equal(made[0].scale, self.scale)
+            and not any(u.shape[1] for u in self.null.own)
+            and not any(b.null.shape[1] for b in made[0].lines)
+        ):
+            # the system the subspace was found on: its elimination is this one
+            return ConstrainedSystem.of(made[0], self.null.vectors)
+        elimination = Elimination.of(
+            system.line_part,
+            system.own_columns(),
+            system.size,
+            self.scale,
+            0.0,
+            own_null=self.null.own,
+        )
+        return ConstrainedSystem.of(elimination, self.null.vectors)
 
-    def solve(self, normal: FloatArray, rhs: FloatArray) -> FloatArray:
-        t, reduced = self._reduced(normal)
-        return np.asarray(t @ np.linalg.solve(reduced, t.T @ rhs))
+    def solve(self, system: LinearSystem) -> FloatArray:
+        return np.asarray(self.restrict(system).solve() * self.scale)
 
-    def inverse(self, normal: FloatArray) -> FloatArray:
+    def inverse(self, system: LinearSystem) -> FloatArray:
         """Covariance factor (AᵀWA)⁺ restricted to the identifiable subspace."""
-        t, reduced = self._reduced(normal)
-        return np.asarray(t @ np.linalg.inv(reduced) @ t.T)
-
-
-def solve_normal(normal: FloatArray, rhs: FloatArray) -> FloatArray:
-    """Minimum-norm (in scaled coordinates) solution of the normal equations; fast path by a
-    Cholesky factorisation with a tiny ridge for rank-deficient systems."""
-    scale = _column_scale(normal)
-    scaled = normal * scale[:, None] * scale[None, :]
-    scaled[np.diag_indices_from(scaled)] += 1e-11
-    try:
-        factor = cho_factor(scaled, lower=True, check_finite=False)
-        return np.asarray(cho_solve(factor, rhs * scale, check_finite=False) * scale)
-    except np.linalg.LinAlgError:
-        pinv, *_ = _scaled_pinv(normal)
-        return np.asarray(pinv @ rhs)
-
-
-# --------------------------------------------------------------------------------------------
-# Building the system
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, eq=False)
-class _Targets:
-    """Unique (line, target) points of a measurement."""
-
-    line: NDArray[np.int64]
-    position_mm: FloatArray
-    reflector_mm: FloatArray
-    projection: FloatArray
-    quantity: NDArray[np.int64]
-    target_mm: FloatArray
-    of_reading: NDArray[np.int64]
-
-
-def _unique_targets(readings: Readings) -> _Targets:
-    key = readings.line * 1_000_000 + readings.target
-    unique, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    return _Targets(
-        readings.line[first],
-        readings.position_mm[first],
-        readings.reflector_mm[first],
-        readings.projection[first],
-        readings.quantity[first],
-        readings.target_mm[first],
-        inverse.astype(np.int64),
-    )
+        return np.asarray(self.restrict(system).inverse() * self.scale[:, None] * self.scale)
 
 
 def model_with_bases(machine: Machine, options: IdentifyOptions) -> ErrorModel:
@@ -446,184 +346,6 @@ def model_with_bases(machine: Machine, options: IdentifyOptions) -> ErrorModel:
         return BSplineBasis.uniform(low, high, options.spacing_mm)
 
     return ErrorModel.zero(machine, basis_for)
-
-
-@dataclass(frozen=True, eq=False)
-class Gauge:
-    """Block-diagonal map from free gauge coordinates θ to model parameters: p = N θ."""
-
-    matrix: FloatArray  # (P, G)
-    blocks: dict[str, slice]  # error id -> columns of θ
-
-    @classmethod
-    def for_model(cls, model: ErrorModel) -> Gauge:
-        columns = []
-        blocks: dict[str, slice] = {}
-        start = 0
-        for eid in AXIS_ERROR_IDS:
-            f = model.functions[eid]
-            axis = ERROR_INFO[eid].axis
-            assert axis is not None
-            null = gauge_null_space(
-                f.basis, model.machine.reference(axis), ERROR_INFO[eid].is_straightness
-            )
-            columns.append(null)
-            blocks[eid] = slice(start, start + null.shape[1])
-            start += null.shape[1]
-        for eid in SQUARENESS_IDS:
-            columns.append(np.ones((1, 1)))
-            blocks[eid] = slice(start, start + 1)
-            start += 1
-        rows = sum(c.shape[0] for c in columns)
-        matrix = np.zeros((rows, start))
-        r = 0
-        for c, eid in zip(columns, ERROR_IDS, strict=True):
-            matrix[r : r + c.shape[0], blocks[eid]] = c
-            r += c.shape[0]
-        return cls(matrix, blocks)
-
-    @property
-    def size(self) -> int:
-        return self.matrix.shape[1]
-
-
-def _geometric_rows(model: ErrorModel, targets: _Targets) -> FloatArray:
-    """d(reading)/d(model parameters) per target (T, P): exact chain for displacement optics,
-    the first-order sum of the axes' angles for angular optics."""
-    rows = np.zeros((len(targets.line), model.parameter_count))
-    angular = targets.quantity == QUANTITY_CODE["angular"]
-    disp = ~angular
-    if disp.any():
-        jac = jacobian(model, targets.position_mm[disp], targets.reflector_mm[disp])
-        rows[disp] = np.einsum("nc,ncp->np", targets.projection[disp], jac)
-    if angular.any():
-        slices = model.parameter_slices
-        q = targets.position_mm[angular]
-        w = targets.projection[angular]
-        block = np.zeros((int(angular.sum()), model.parameter_count))
-        for axis in AXES:
-            for j, component in enumerate("ABC"):
-                eid = f"E{component}{axis}"
-                design = model.functions[eid].basis.design(q[:, AXIS_INDEX[axis]])
-                block[:, slices[eid]] += w[:, j, None] * design
-        rows[angular] = block
-    return rows
-
-
-def predict_geometric(model: ErrorModel, targets: _Targets) -> FloatArray:
-    """Exact prediction of each target's reading from the 21 errors (without nuisances)."""
-    out = np.zeros(len(targets.line))
-    angular = targets.quantity == QUANTITY_CODE["angular"]
-    disp = ~angular
-    if disp.any():
-        e = VolumetricModel(model).error(targets.position_mm[disp], targets.reflector_mm[disp])
-        out[disp] = np.einsum("nc,nc->n", e, targets.projection[disp])
-    if angular.any():
-        rot = rotation_error(model, targets.position_mm[angular])
-        out[angular] = np.einsum("nc,nc->n", rot, targets.projection[angular])
-    return out
-
-
-class EffectTerm:
-    """What identification needs of an effect (core/effects.py implements it)."""
-
-    label: str
-    line_index: int | None  # the only line it acts on (a set-up effect), or None
-
-    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:  # (n, k)
-        raise NotImplementedError
-
-
-def build_system(
-    readings: Readings,
-    targets: _Targets,
-    model: ErrorModel,
-    gauge: Gauge,
-    effects: Sequence[EffectTerm],
-    pseudo_y: FloatArray,
-    effect_model: ErrorModel | None = None,
-) -> LinearSystem:
-    """Assemble the normal equations for one linearisation (effects designed with
-    ``effect_model``, by default the linearisation point itself)."""
-    n_lines = len(readings.lines)
-    geo = _geometric_rows(model, targets) @ gauge.matrix  # (T, G)
-    blocks: list[ColumnBlock] = [ColumnBlock("error", eid, gauge.blocks[eid]) for eid in ERROR_IDS]
-    start = gauge.size
-    offset_cols = np.zeros((len(targets.line), n_lines))
-    offset_cols[np.arange(len(targets.line)), targets.line] = 1.0
-    for index, line in enumerate(readings.lines):
-        blocks.append(
-            ColumnBlock("offset", line.name, slice(start + index, start + index + 1), index)
-        )
-    start += n_lines
-    straight_lines = [
-        i for i, line in enumerate(readings.lines) if line.spec.quantity == "straightness"
-    ]
-    slope_cols = np.zeros((len(targets.line), len(straight_lines)))
-    for k, index in enumerate(straight_lines):
-        mask = targets.line == index
-        # slope per metre of travel keeps the columns on the scale of the others
-        slope_cols[mask, k] = targets.target_mm[mask] / 1000.0
-        blocks.append(
-            ColumnBlock("slope", readings.lines[index].name, slice(start + k, start + k + 1), index)
-        )
-    start += len(straight_lines)
-    target_design = np.hstack([geo, offset_cols, slope_cols])
-    effect_parts = []
-    for effect in effects:
-        d = effect.design(readings, effect_model or model)
-        effect_parts.append(d)
-        blocks.append(
-            ColumnBlock("effect", effect.label, slice(start, start + d.shape[1]), effect.line_index)
-        )
-        start += d.shape[1]
-    effect_design = np.hstack(effect_parts) if effect_parts else np.zeros((len(readings), 0))
-    weights = 1.0 / readings.sigma**2
-    idx = targets.of_reading
-    p_t = target_design.shape[1]
-    line_normal, line_rhs = [], []
-    normal = np.zeros((start, start))
-    rhs = np.zeros(start)
-    for index in range(n_lines):
-        rmask = readings.line == index
-        tmask = targets.line == index
-        t_index = np.flatnonzero(tmask)
-        local = np.searchsorted(t_index, idx[rmask])
-        w = weights[rmask]
-        w_t = np.bincount(local, weights=w, minlength=len(t_index))
-        wy_t = np.bincount(local, weights=w * pseudo_y[rmask], minlength=len(t_index))
-        g = target_design[t_index]
-        m = np.zeros((start, start))
-        b = np.zeros(start)
-        m[:p_t, :p_t] = (g * w_t[:, None]).T @ g
-        b[:p_t] = g.T @ wy_t
-        if effect_design.shape[1]:
-            e = effect_design[rmask]
-            we = e * w[:, None]
-            agg = np.stack(
-                [np.bincount(local, weights=col, minlength=len(t_index)) for col in we.T], axis=-1
-            )
-            cross = g.T @ agg
-            m[:p_t, p_t:] = cross
-            m[p_t:, :p_t] = cross.T
-            m[p_t:, p_t:] = e.T @ we
-            b[p_t:] = we.T @ pseudo_y[rmask]
-        line_normal.append(m)
-        line_rhs.append(b)
-        normal += m
-        rhs += b
-    return LinearSystem(
-        blocks,
-        normal,
-        rhs,
-        line_normal,
-        line_rhs,
-        target_design,
-        idx,
-        effect_design,
-        pseudo_y,
-        weights,
-    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -654,10 +376,10 @@ def identifiability(
     system: LinearSystem, gauge: Gauge, lines: Sequence[str], redundancy: bool = True
 ) -> Identifiability:
     """Rank, what the plan cannot see (named), and which lines are redundant."""
-    _, scale, values, vectors = _scaled_pinv(system.normal)
-    limit = RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
-    null = vectors[:, values <= limit]  # scaled coordinates
-    rank = int(np.sum(values > limit))
+    elimination, limit = eliminate(system)
+    nulls = elimination.null_space(limit)
+    null = nulls.orthonormal()  # scaled coordinates
+    rank = system.size - null.shape[1]
     messages: list[Unidentifiable] = []
     unidentified: set[str] = set()
     block_of = {b.key: b for b in system.blocks if b.kind == "error"}
@@ -703,42 +425,82 @@ def identifiability(
             messages.append(Unidentifiable((eid, *partners), dims, text))
     redundant: list[str] = []
     if redundancy:
-        lim = RANK_TOLERANCE * max(values.max(initial=0.0), 1e-300)
-        for index, name in enumerate(lines):
-            own = system.line_columns(index)
-            keep = np.setdiff1d(np.arange(system.size), own)
-            m = (system.normal - system.line_normal[index]) * scale[:, None] * scale[None, :]
-            m = m[np.ix_(keep, keep)]
-            ev = np.linalg.eigvalsh(m)
-            if int(np.sum(ev > lim)) == rank - len(own):
-                redundant.append(name)
+        redundant = [
+            name
+            for index, name in enumerate(lines)
+            if _is_redundant(system, elimination, index, limit)
+        ]
     identified = tuple(e for e in ERROR_IDS if e not in unidentified)
     return Identifiability(rank, system.size, tuple(messages), tuple(redundant), identified)
+
+
+def _is_redundant(system: LinearSystem, elimination: Elimination, line: int, limit: float) -> bool:
+    """Whether leaving the line out keeps the rank of every other column (its own columns go
+    with it): its largest leverage on the reduced system stays below 1.
+
+    With R the reduced matrix and S the line's Schur part, R − S keeps R's rank when the
+    eigenvalues h of S against R (the line's leverages) are below 1; an eigenvalue of R − S
+    then lies between (1 − h)·λmin(R) and (1 − h)·λmax(R), compared with the rank limit as the
+    whole matrix's eigenvalues are. In between, R − S's eigenvalues are counted directly.
+    """
+    block = elimination.lines[line]
+    values, _ = elimination.eigen
+    kept = values[values > limit]
+    if block.null.shape[1]:
+        return _keeps_rank(elimination, system, line, limit, block.null.shape[1])
+    if kept.size == 0:
+        return True
+    pinv = elimination.reduced_pinv(limit)
+    touched = block.touched
+    rows = _projected_rows(system, elimination, line)
+    h = largest_leverage(rows, pinv[np.ix_(touched, touched)])
+    gap = 1.0 - h
+    if gap * kept[0] > limit:
+        return True
+    if gap * kept[-1] <= limit:
+        return False
+    return _keeps_rank(elimination, system, line, limit, 0)
+
+
+def _projected_rows(system: LinearSystem, elimination: Elimination, line: int) -> FloatArray:
+    """A factor F (·× touched) of the line's Schur part S = FᵀF, scaled: its weighted target
+    rows with its own columns projected out, or (when effects act on the line, whose rows differ
+    from reading to reading) the square root of S."""
+    block = elimination.lines[line]
+    scale = elimination.scale
+    part = system.line_part(line)
+    own = np.isin(part.columns, block.columns)
+    target_columns, rows = system.line_rows(line)
+    if target_columns.size != part.columns.size:
+        schur, _ = line_schur(block, part, scale)
+        values, vectors = np.linalg.eigh(schur)
+        return np.asarray((vectors * np.sqrt(np.maximum(values, 0.0))).T)
+    readings = system.line_readings(line)
+    local = system.target_of_reading[readings] - system.line_targets[line]
+    w_t = np.bincount(local, weights=system.weights[readings], minlength=rows.shape[0])
+    x = rows * scale[target_columns]
+    # own columns in the order of block.columns
+    where = np.searchsorted(target_columns, block.columns)
+    projected = x[:, ~own] - x[:, where] @ (block.inverse @ block.coupling)
+    return np.asarray(projected * np.sqrt(w_t)[:, None])
+
+
+def _keeps_rank(
+    elimination: Elimination, system: LinearSystem, line: int, limit: float, lost_own: int
+) -> bool:
+    """R − S has R's rank less the line's undetermined own directions (eigenvalues counted)."""
+    block = elimination.lines[line]
+    values, _ = elimination.eigen
+    schur, _ = line_schur(block, system.line_part(line), elimination.scale)
+    reduced = elimination.reduced.copy()
+    reduced[np.ix_(block.touched, block.touched)] -= schur
+    left = np.linalg.eigvalsh(reduced)
+    return int(np.sum(left > limit)) == int(np.sum(values > limit)) - lost_own
 
 
 # --------------------------------------------------------------------------------------------
 # Identification
 # --------------------------------------------------------------------------------------------
-
-
-def _without_effects(system: LinearSystem) -> LinearSystem:
-    """The system restricted to the 21 errors and the lines' nuisances (effect columns, which
-    come last, left out)."""
-    size = min((b.columns.start for b in system.blocks if b.kind == "effect"), default=system.size)
-    if size == system.size:
-        return system
-    return LinearSystem(
-        [b for b in system.blocks if b.kind != "effect"],
-        system.normal[:size, :size],
-        system.rhs[:size],
-        [m[:size, :size] for m in system.line_normal],
-        [b[:size] for b in system.line_rhs],
-        system.target_design,
-        system.target_of_reading,
-        np.zeros((len(system.target_of_reading), 0)),
-        system.y,
-        system.weights,
-    )
 
 
 def identify(
@@ -762,7 +524,8 @@ def identify(
     readings = readings if readings is not None else flatten(measurement)
     if len(readings) == 0:
         raise IdentificationError("the measurement has no valid readings")
-    targets = _unique_targets(readings)
+    targets = unique_targets(readings)
+    bounds = targets.bounds(len(readings.lines))
     model = model_with_bases(measurement.machine, options)
     gauge = Gauge.for_model(model)
     theta = np.zeros(gauge.size) if initial is None else gauge.matrix.T @ initial.parameters
@@ -772,7 +535,7 @@ def identify(
     rank_info: Identifiability | None = None
     solution = np.zeros(0)
     reduction: Reduction | None = None
-    expand = np.eye(0)
+    restricted: ConstrainedSystem | None = None
     reduced: LinearSystem | None = None
     max_iterations = options.max_iterations if options.refine else 1
     noise = float(np.median(readings.sigma))
@@ -782,10 +545,15 @@ def identify(
             progress, 0.1 + 0.7 * (iterations - 1) / max_iterations, f"linear solve {iterations}"
         )
         current = model.with_parameters(gauge.matrix @ theta)
-        rows = _geometric_rows(current, targets) @ gauge.matrix
-        base = predict_geometric(current, targets) - rows @ theta
+        # the previous linearisation is not needed any more: free it before building the next
+        system = reduced = None
+        geometric = GeometricDesign.of(current, targets, gauge, bounds)
+        base = predict_geometric(current, targets) - geometric.apply(theta)
         pseudo_y = readings.value - base[targets.of_reading]
-        system = build_system(readings, targets, current, gauge, effects, pseudo_y)
+        system = build_system(
+            readings, targets, current, gauge, effects, pseudo_y, geometric=geometric
+        )
+        del geometric
         if subspace is None:
             # What the plan can see is decided once, on the first-order system (the Jacobian at
             # zero errors): nonlinear refinement must not turn second-order couplings into
@@ -798,36 +566,49 @@ def identify(
                 )
             reduction = separable_reduction(structural)
             structural.reduction = reduction
-            subspace = _Subspace.of(structural.reduced().normal)
+            subspace = _Subspace.of(structural.reduced())
             # What the plan sees of the 21 errors is judged without the effects: what an effect
             # shares with a rigid body is left to the rigid body (separable_reduction).
             rank_info = identifiability(
-                _without_effects(structural),
+                without_effects(structural),
                 gauge,
                 [line.name for line in readings.lines],
                 options.redundancy,
             )
+            del structural
         system.reduction = reduction
         reduced = system.reduced()
-        expand = np.eye(system.size) if reduction is None else reduction.matrix
-        solution = expand @ subspace.solve(reduced.normal, reduced.rhs)
+        restricted = subspace.restrict(reduced)
+        solution = _expand(
+            reduction,
+            _refined_solve(reduced, restricted, subspace.scale),
+            reduced.target_design.shape[1],
+        )
         new_theta = solution[: gauge.size]
         change = _max_value_change(model, gauge, theta, new_theta)
         theta = new_theta
         if change < 1e-2 * noise:
             break
     assert system is not None and subspace is not None and rank_info is not None
+    assert restricted is not None
+    # what was kept for the solves is not part of the result
+    system._parts = None
+    system._eliminations.clear()
     model = model.with_parameters(gauge.matrix @ theta)
     check(cancel)
     report(progress, 0.85, "uncertainty")
     design_residual = system.y - _apply(system, solution)
     final_pred = readings.value - design_residual
-    fitted_rank = int(subspace.basis.shape[1])
+    fitted_rank = subspace.rank
     dof = max(len(readings) - fitted_rank, 1)
     chi2 = float(np.sum(system.weights * design_residual**2))
     sigma_scale = float(np.sqrt(chi2 / dof))
-    assert reduced is not None
-    normal_inverse = expand @ subspace.inverse(reduced.normal) @ expand.T
+    scale = subspace.scale
+    rigid = system.target_design.shape[1]
+    normal_inverse = restricted.inverse() * scale[:, None] * scale[None, :]
+    if reduction is not None:
+        normal_inverse = expand_pair(normal_inverse, reduction.matrix, rigid)
+    del restricted
     cov_all = normal_inverse * sigma_scale**2
     g = gauge.size
     covariance = gauge.matrix @ cov_all[:g, :g] @ gauge.matrix.T
@@ -862,6 +643,39 @@ def identify(
     )
 
 
+def _refined_solve(
+    system: LinearSystem, restricted: ConstrainedSystem, scale: FloatArray
+) -> FloatArray:
+    """The restricted least-squares solution, refined once with the residual of the design
+    itself (corrected semi-normal equations): the normal equations square the design's
+    condition number, the residual y − Ax does not, so the step recovers the digits an
+    ill-conditioned plan (a few diagonals) loses in AᵀWA."""
+    x = restricted.solve()
+    residual = system.y - _apply(system, x * scale)
+    correction = restricted.solve(_apply_transpose(system, system.weights * residual) * scale)
+    return np.asarray((x + correction) * scale)
+
+
+def _apply_transpose(system: LinearSystem, values: FloatArray) -> FloatArray:
+    """Aᵀ·v for a value per reading."""
+    per_target = np.bincount(
+        system.target_of_reading, weights=values, minlength=system.target_design.shape[0]
+    )
+    out = system.target_design.T @ per_target
+    if system.effect_design.shape[1]:
+        out = np.concatenate([out, system.effect_design.T @ values])
+    return np.asarray(out)
+
+
+def _expand(reduction: Reduction | None, reduced: FloatArray, rigid: int) -> FloatArray:
+    """The solution in all unknowns from the reduced unknowns (effects follow the ``rigid``
+    columns)."""
+    if reduction is None:
+        return reduced
+    r = reduction.matrix
+    return np.concatenate([reduced[:rigid], r[rigid:, rigid:] @ reduced[rigid:]])
+
+
 def _apply(system: LinearSystem, solution: FloatArray) -> FloatArray:
     """A·x for every reading."""
     p_t = system.target_design.shape[1]
@@ -882,100 +696,8 @@ def _max_value_change(model: ErrorModel, gauge: Gauge, old: FloatArray, new: Flo
 
 
 # --------------------------------------------------------------------------------------------
-# Cross-validation
+# Reports
 # --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class CrossValidation:
-    """Cross-validated error of a fit."""
-
-    method: str  # "leave-one-line-out" or "held-out blocks"
-    rms_um: float  # over displacement readings
-    rms_urad: float  # over angular readings (nan if none)
-    per_line_rms: dict[str, float]
-    residual: FloatArray  # cross-validated residual per reading
-
-
-def cross_validate(
-    system: LinearSystem, readings: Readings, redundant: Sequence[str] | None = None
-) -> CrossValidation:
-    """Leave-one-line-out cross-validated residuals from the normal equations.
-
-    For each line: fit without it, predict it, then fit only that line's own columns (its zero
-    offset, straightness slope and set-up effects) to what is left — the laser's zero and
-    alignment are unknown for a line never seen. When some lines are not redundant (leaving them
-    out loses rank), held-out contiguous blocks of targets are used instead.
-    """
-    system = system.reduced()
-    names = [line.name for line in readings.lines]
-    if redundant is not None and set(names) - set(redundant):
-        return _cross_validate_blocks(system, readings)
-    residual = np.empty(len(readings))
-    for index in range(len(names)):
-        own = system.line_columns(index)
-        keep = np.setdiff1d(np.arange(system.size), own)
-        m = system.normal - system.line_normal[index]
-        b = system.rhs - system.line_rhs[index]
-        x = np.zeros(system.size)
-        x[keep] = solve_normal(m[np.ix_(keep, keep)], b[keep])
-        mask = readings.line == index
-        rows = system.design_rows(mask)
-        r = system.y[mask] - rows @ x
-        if own.size:
-            local = rows[:, own]
-            w = np.sqrt(system.weights[mask])
-            coef, *_ = np.linalg.lstsq(local * w[:, None], r * w, rcond=None)
-            r = r - local @ coef
-        residual[mask] = r
-    return _summarise("leave-one-line-out", residual, readings)
-
-
-#: Length of travel held out together in block cross-validation (a third of the default
-#: 50 mm basis spacing, so every basis function keeps data on both sides).
-BLOCK_MM = 15.0
-
-
-def _cross_validate_blocks(
-    system: LinearSystem, readings: Readings, folds: int = 5
-) -> CrossValidation:
-    """Held-out contiguous blocks of targets within every line (all lines stay in the fit).
-
-    Blocks are short (the targets within ``BLOCK_MM`` of travel) and dealt to the folds in turn,
-    shifted from line to line: a fold never empties a region of the stroke that only one line
-    sees (which would leave local basis functions undetermined), while a structure spanning a
-    block still has to be predicted from its neighbours and the other lines.
-    """
-    residual = np.empty(len(readings))
-    fold_of = np.zeros(len(readings), dtype=int)
-    for index in range(len(readings.lines)):
-        mask = readings.line == index
-        block = np.floor(readings.target_mm[mask] / BLOCK_MM).astype(int)
-        fold_of[mask] = (block + index) % folds
-    rows_all = system.design_rows()
-    w_all = system.weights
-    for k in range(folds):
-        held = fold_of == k
-        rows = rows_all[held]
-        wr = rows * w_all[held, None]
-        m = system.normal - rows.T @ wr
-        b = system.rhs - wr.T @ system.y[held]
-        pinv, *_ = _scaled_pinv(m)
-        x = pinv @ b
-        residual[held] = system.y[held] - rows @ x
-    return _summarise("held-out blocks of targets", residual, readings)
-
-
-def _summarise(method: str, residual: FloatArray, readings: Readings) -> CrossValidation:
-    angular = readings.is_angular
-    disp = ~angular
-    rms_um = float(np.sqrt(np.mean(residual[disp] ** 2))) if disp.any() else float("nan")
-    rms_urad = float(np.sqrt(np.mean(residual[angular] ** 2))) if angular.any() else float("nan")
-    per_line = {
-        line.name: float(np.sqrt(np.mean(residual[readings.line == i] ** 2)))
-        for i, line in enumerate(readings.lines)
-    }
-    return CrossValidation(method, rms_um, rms_urad, per_line, residual)
 
 
 def residual_rms(identification: Identification) -> tuple[float, float]:
@@ -1017,6 +739,13 @@ __all__ = [
     "Identification",
     "IdentifyOptions",
     "UncertaintyBudget",
+    "BLOCK_MM",
+    "ColumnBlock",
+    "CrossValidation",
+    "EffectTerm",
+    "Gauge",
+    "LinearSystem",
+    "RANK_TOLERANCE",
     "cross_validate",
     "identify",
     "parameters_report",
