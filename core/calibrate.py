@@ -123,6 +123,8 @@ class CalibrationRequest:
     export_formats: tuple[str, ...] = ("linuxcnc", "csv")
     #: plausibility limit of the exported corrections (µm); None exports any size
     max_correction_um: float | None = DEFAULT_MAX_CORRECTION_UM
+    #: the folder the plan's files may lie in (None: the plan's own folder)
+    files_root: Path | None = None
     loop: LoopOptions = field(default_factory=LoopOptions)
     sensitivity: bool = True
     sensitivity_n: int = 1400
@@ -154,7 +156,7 @@ def calibrate(
         return lambda f, m: progress(start + (stop - start) * f, m)
 
     report(progress, 0.0, "reading the plan")
-    plan = load_plan(request.plan_path)
+    plan = load_plan(request.plan_path, files_root=request.files_root)
     imported = import_plan(
         plan, drop_outliers=request.drop_outliers, progress=sub(0.0, 0.1), cancel=cancel
     )

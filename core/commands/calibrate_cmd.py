@@ -35,6 +35,12 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
         help="compensation format to export (repeat; default: linuxcnc and csv)",
     )
     add_correction_limit(parser)
+    parser.add_argument(
+        "--files-root",
+        type=Path,
+        metavar="DIR",
+        help="allow the plan's files to lie anywhere under DIR (default: the plan's own folder)",
+    )
     parser.add_argument("--no-sensitivity", action="store_true", help="skip the EFAST ranking")
     parser.add_argument(
         "--margin",
@@ -69,6 +75,7 @@ def run(
         export_dir=export,
         export_formats=tuple(args.formats or ("linuxcnc", "csv")),
         max_correction_um=correction_limit(args),
+        files_root=getattr(args, "files_root", None),
         loop=LoopOptions(margin=args.margin),
         sensitivity=not args.no_sensitivity,
         drop_outliers=args.drop_outliers,

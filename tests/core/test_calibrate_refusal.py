@@ -44,3 +44,16 @@ def test_the_limit_can_be_lifted_explicitly(tmp_path, capsys) -> None:
     args = ["calibrate", str(plan), "--export", str(out), "--no-sensitivity", "--quiet"]
     assert main([*args, "--allow-large-corrections"]) == 0, capsys.readouterr().err
     assert (out / "linuxcnc" / "comp.ini").is_file()
+
+
+def test_plan_files_outside_its_folder_need_files_root(tmp_path, capsys) -> None:
+    session = _session(tmp_path).parent
+    elsewhere = tmp_path / "plans" / "plan.toml"
+    elsewhere.parent.mkdir()
+    text = (session / "plan.toml").read_text().replace('file = "logs/', 'file = "../session/logs/')
+    elsewhere.write_text(text)
+    args = ["calibrate", str(elsewhere), "--no-sensitivity", "--quiet"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--files-root" in err
+    assert main([*args, "--files-root", str(tmp_path), "--allow-large-corrections"]) == 0
