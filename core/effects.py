@@ -200,7 +200,10 @@ class Cyclic(Effect):
 
     @property
     def label(self) -> str:
-        return f"cyclic {self.axis_name} {self.period_mm:.4g} mm"
+        label = f"cyclic {self.axis_name} {self.period_mm:.4g} mm"
+        if self.harmonics != (1,):
+            label += " with harmonics " + ", ".join(str(h) for h in self.harmonics)
+        return label
 
     @property
     def searched(self) -> int:
