@@ -79,6 +79,8 @@ class CompensationView(View):
             self.format_box.setItemData(self.format_box.count() - 1, text,
                                         Qt.ItemDataRole.ToolTipRole)
         self.format_box.currentIndexChanged.connect(self._format_changed)
+        for box in (self.identification_box, self.source_box):
+            box.activated.connect(lambda _i: self.clear_preview())
         self.format_help = QLabel()
         self.format_help.setWordWrap(True)
         self.format_help.setMinimumWidth(200)
@@ -163,7 +165,7 @@ class CompensationView(View):
         self.table.verticalHeader().setVisible(False)
         self.table.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
         self.table_plot = plots.make_plot("Axis table", "position (mm)", "correction (µm)")
-        self.table_plot.addLegend(offset=(10, 10))
+        plots.add_legend(self.table_plot.getPlotItem())
         tables_page = QWidget()
         tables_layout = QVBoxLayout(tables_page)
         axis_row = QHBoxLayout()
@@ -198,7 +200,7 @@ class CompensationView(View):
         self.rates.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
         self.rms_plot = plots.make_plot("Predicted RMS error per direction", None, "RMS (µm)")
         self.rms_plot.setObjectName("predictedPlot")
-        self.rms_plot.addLegend(offset=(-10, 10))
+        plots.add_legend(self.rms_plot.getPlotItem(), columns=3)
         predicted_page = QSplitter(Qt.Orientation.Vertical)
         predicted_page.addWidget(self.rates)
         predicted_page.addWidget(self.rms_plot)
@@ -225,6 +227,7 @@ class CompensationView(View):
     # ---- options -------------------------------------------------------------------------------
 
     def _format_changed(self) -> None:
+        self.clear_preview()
         name = self.format_box.currentData()
         self.format_help.setText(FORMAT_HELP.get(name, ""))
         self.linuxcnc_type.setEnabled(name == "linuxcnc")
@@ -344,6 +347,11 @@ class CompensationView(View):
 
     # ---- showing -------------------------------------------------------------------------------
 
+    def set_document(self, document: ProjectDocument) -> None:
+        self.clear_preview()
+        self.status.clear()
+        super().set_document(document)
+
     def refresh(self) -> None:
         current = self.identification_box.currentText()
         names = self.document.results("identifications")
@@ -375,6 +383,20 @@ class CompensationView(View):
             folder = str(tree.get("out_dir", ""))
             self.status.setText(f"last {name} export: {folder or 'not written'} — press "
                                 "Preview to see it")
+
+    def clear_preview(self) -> None:
+        """Forget the shown preview: it was of other options, identification or project."""
+        if self.preview is None:
+            return
+        self.preview = None
+        for widget in (self.files, self.file_text, self.notes):
+            widget.clear()
+        self.table.setRowCount(0)
+        self.table_plot.clear()
+        self.table_plot.getPlotItem().setTitle("Axis table", size="10pt")
+        self.rates.setRowCount(0)
+        self.rms_plot.clear()
+        self.status.setText("press Preview to see the tables of these options")
 
     def _show_preview(self) -> None:
         preview = self.preview
@@ -458,8 +480,7 @@ class CompensationView(View):
                                          width=width, brush=plots.brush(plots.color(k - 1), 200),
                                          name=name))
         plots.category_ticks(item.getAxis("bottom"), [f"E{a}" for a in AXES])
-        # headroom above the bars for the legend
-        item.setYRange(0.0, 1.6 * max(max(before), 1e-6), padding=0)
+        item.setYRange(0.0, 1.08 * max(max(before), 1e-6), padding=0)
 
 
 def _spin(value: float, low: float, high: float, suffix: str) -> QDoubleSpinBox:

@@ -241,14 +241,6 @@ class ProjectDocument(QObject):
         return saved
 
 
-@dataclass(frozen=True, eq=False)
-class Live:
-    """A live result: the core object and the record the views read."""
-
-    value: Any
-    record: Any
-
-
 def _capture_arrays(capture: Any) -> dict[str, Any]:
     """A dynamic capture's arrays as the project stores them."""
     arrays = {"time_s": capture.time_s, "deviation": capture.deviation}

@@ -32,8 +32,8 @@ from volucal.core.errors import AXIS_ERROR_IDS, COMPONENTS, ERROR_INFO, SQUARENE
 from volucal.core.machine import AXES
 
 from . import evidence, jobs, plots
-from .document import Live, ProjectDocument
-from .records import IdentificationRecord, identify_options
+from .document import ProjectDocument
+from .records import IdentificationRecord, Live, identify_options
 from .settings import Preferences
 from .view_base import View
 

@@ -32,12 +32,16 @@ from volucal.core.progress import CancelToken, ProgressCallback, check, report
 from volucal.core.project import Project
 from volucal.core.residuals import LoopOptions, LoopResult, close_loop
 from volucal.core.resources import demo_plan
+from volucal.core.result_trees import loop_result_trees
 
 from .factors import RANKING_GRID_MM, SensitivitySetup, sensitivity_tree
 from .records import (
+    IdentificationRecord,
+    Live,
     LoopRecord,
     identification_result_tree,
     json_text,
+    loop_identifiability,
     stored_model,
 )
 
@@ -81,13 +85,18 @@ class LoopRun:
 
     def trees(self) -> dict[tuple[str, str], dict[str, Any]]:
         """The project results of a loop: the identifications before and after, the report."""
+        return loop_result_trees(self.loop, self.options.identify)
+
+    def live(self) -> dict[tuple[str, str], Any]:
+        """The same results as the document's live objects (core object and view record)."""
+        loop = self.loop
         identify_options = self.options.identify
         return {
-            ("identifications", "main"): identification_result_tree(self.loop.base,
-                                                                     identify_options),
-            ("identifications", "loop"): identification_result_tree(self.loop.final,
-                                                                     identify_options),
-            ("loops", "main"): LoopRecord.from_loop("main", self.loop).to_tree(),
+            ("identifications", "main"): Live(loop.base, IdentificationRecord.from_identification(
+                "main", loop.base, identify_options)),
+            ("identifications", "loop"): Live(loop.final, IdentificationRecord.from_identification(
+                "loop", loop.final, identify_options, loop_identifiability(loop))),
+            ("loops", "main"): Live(loop, LoopRecord.from_loop("main", loop)),
         }
 
 

@@ -40,9 +40,10 @@ from volucal.core.residuals import LoopOptions
 from volucal.core.userror import UserError
 
 from . import evidence, jobs, plots
-from .document import Live, ProjectDocument
+from .document import ProjectDocument
 from .records import (
     IdentificationRecord,
+    Live,
     LoopRecord,
     effect_from_json,
     identification_result_tree,
@@ -130,11 +131,11 @@ class LoopView(View):
         self.residual_box.currentIndexChanged.connect(lambda _i: self._show_evidence())
         self.evidence_plot = plots.make_plot("Evidence")
         self.evidence_plot.setObjectName("evidencePlot")
-        self.evidence_legend = self.evidence_plot.addLegend(offset=(10, 10))
+        self.evidence_legend = plots.add_legend(self.evidence_plot.getPlotItem())
         self.evidence_note = QLabel()
         self.evidence_note.setWordWrap(True)
         self.rms_plot = plots.make_plot("RMS residual per group: before and after", None, "RMS")
-        self.rms_plot.addLegend(offset=(10, 10))
+        plots.add_legend(self.rms_plot.getPlotItem())
         self.rms_table = QTableWidget(0, 4)
         self.rms_table.setObjectName("rmsTable")
         self.rms_table.setHorizontalHeaderLabels(["group", "before", "after", "unit"])
@@ -187,16 +188,7 @@ class LoopView(View):
         )
 
     def _looped(self, run: jobs.LoopRun) -> None:
-        loop = run.loop
-        identify = run.options.identify
-        live = {
-            ("identifications", "main"): Live(loop.base, IdentificationRecord.from_identification(
-                "main", loop.base, identify)),
-            ("identifications", "loop"): Live(loop.final, IdentificationRecord.from_identification(
-                "loop", loop.final, identify)),
-            ("loops", "main"): Live(loop, LoopRecord.from_loop("main", loop)),
-        }
-        self.document.put_results("close the loop", run.trees(), live)
+        self.document.put_results("close the loop", run.trees(), run.live())
         self.select("main")
 
     def refit(self) -> None:

@@ -35,7 +35,7 @@ from volucal.core.sensitivity import OUTPUT_NAMES, SensitivityResult
 from volucal.core.userror import UserError
 
 from . import plots
-from .document import Live, ProjectDocument
+from .document import ProjectDocument
 from .factors import (
     DISTRIBUTIONS,
     RANKING_GRID_MM,
@@ -43,7 +43,7 @@ from .factors import (
     SensitivitySetup,
     sensitivity_tree,
 )
-from .records import stored_model
+from .records import Live, stored_model
 from .settings import Preferences
 from .view_base import View
 
@@ -136,7 +136,7 @@ class SensitivityView(View):
         self.bars = plots.make_plot("EFAST indices", "index", None)
         self.bars.setObjectName("sensitivityBars")
         self.bars.getPlotItem().invertY(True)
-        self.bars.addLegend(offset=(-10, -10))
+        plots.add_legend(self.bars.getPlotItem())
         self.table = QTableWidget(0, len(COLUMNS))
         self.table.setObjectName("factorTable")
         self.table.setHorizontalHeaderLabels(list(COLUMNS))
@@ -182,7 +182,7 @@ class SensitivityView(View):
         self.colorbar = pg.ColorBarItem(colorMap=pg.colormap.get("viridis"), interactive=False,
                                         width=12)
         self.colorbar.setImageItem(self.image, insert_in=self.map_plot.getPlotItem())
-        self.colorbar.axis.enableAutoSIPrefix(False)
+        plots.plain_axis(self.colorbar.axis)
         map_box = QGroupBox("Workspace map (one EFAST analysis per grid point)")
         map_layout = QVBoxLayout(map_box)
         map_layout.addLayout(map_controls)

@@ -96,6 +96,9 @@ class Task(QObject):
         self.token = CancelToken()
         self.fraction = 0.0
         self.message = ""
+        #: How it ended, for the status bar: "finished", "cancelled", "failed" or
+        #: "internal error" ("" while running).
+        self.outcome = ""
         self._owner = owner
         self._dropped = False
         self._thread = _WorkerThread(call, self.token)
@@ -145,12 +148,14 @@ class Task(QObject):
     def _on_returned(self, result: object) -> None:
         if not self._deliverable():
             return
+        self.outcome = "finished"
         log.info("%s: done", self.title)
         self.succeeded.emit(result)
 
     def _on_raised(self, kind: str, text: str) -> None:
         if not self._deliverable():
             return
+        self.outcome = {"cancelled": "cancelled", "user": "failed"}.get(kind, "internal error")
         if kind == "cancelled":
             log.info("%s: cancelled", self.title)
             self.cancelled.emit()

@@ -63,7 +63,9 @@ from .measurement import Environment, Line, LineData, LineSpec, Measurement, Pla
 from .userror import UserError
 
 FORMAT_VERSION = 1
-RESULT_KINDS = ("identifications", "loops", "sensitivity", "compensation")
+# "report": what the calibration report states that the measurement does not (certificate
+# fields, the user's ISO 230-2 tolerances per axis), written by the workbench's report dialog.
+RESULT_KINDS = ("identifications", "loops", "sensitivity", "compensation", "report")
 UNIT_SUFFIXES = {"_um": "um", "_urad": "urad", "_mm": "mm", "_s": "s", "_c": "degC"}
 _RESERVED = "volucal_"
 
