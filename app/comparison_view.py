@@ -35,14 +35,15 @@ from volucal.core.userror import UserError
 from . import plots
 from .dialogs import show_error
 from .document import ProjectDocument
-from .measurement_view import FIGURES
 from .settings import last_folder, set_last_folder
 from .view_base import View
 
 AFTER = "#2ca02c"
 BEFORE = "#1f77b4"
-AXIS_COLUMNS = ("axis", "lines", "RMS x̄ before", "after", "rate %", "range x̄ before", "after",
-                "rate %", "A before", "after", "rate %")
+AXIS_COLUMNS = ("axis", "lines", "RMS of x̄: before → after", "rate %",
+                "range of x̄: before → after", "rate %", "A: before → after", "rate %")
+SHORT_NAMES = {"A": "A (accuracy)", "E": "E (systematic)", "R": "R (repeatability)",
+               "B": "B (reversal)", "M": "M (mean bidirectional)"}
 
 
 class ComparisonView(View):
@@ -204,15 +205,14 @@ class ComparisonView(View):
             spread = self.units.convert(2.0 * s, unit)
             plots.add_band(item, x, mean - spread, mean + spread, colour, 40)
             item.addItem(pg.PlotDataItem(x, mean, pen=plots.pen(colour, 2.2),
-                                         name=f"{which}: x̄"))
+                                         name=f"{which}: x̄ ± 2s"))
         self._fill_values(pair)
 
     def _fill_values(self, pair: LinePair) -> None:
-        names = dict(FIGURES)
         unit = pair.before.unit
         for row, key in enumerate(KEYS):
             improvement = pair.improvement_percent(key)
-            cells = [names[key], self.units.text(pair.value(key, "before"), unit),
+            cells = [SHORT_NAMES[key], self.units.text(pair.value(key, "before"), unit),
                      self.units.text(pair.value(key, "after"), unit),
                      "—" if math.isnan(improvement) else f"{improvement:.1f} %"]
             for column, text in enumerate(cells):
@@ -226,12 +226,11 @@ class ComparisonView(View):
         self.axes.setRowCount(len(comparison.axes))
         for row, rates in enumerate(comparison.axes):
             cells = [rates.axis, str(len(rates.lines)),
-                     self.units.text(rates.rms_before_um, "um"),
-                     self.units.text(rates.rms_after_um, "um"), _percent(rates.rms_percent),
-                     self.units.text(rates.range_before_um, "um"),
-                     self.units.text(rates.range_after_um, "um"), _percent(rates.range_percent),
-                     self.units.text(rates.accuracy_before_um, "um"),
-                     self.units.text(rates.accuracy_after_um, "um"),
+                     self._arrow(rates.rms_before_um, rates.rms_after_um),
+                     _percent(rates.rms_percent),
+                     self._arrow(rates.range_before_um, rates.range_after_um),
+                     _percent(rates.range_percent),
+                     self._arrow(rates.accuracy_before_um, rates.accuracy_after_um),
                      _percent(rates.accuracy_percent)]
             for column, text in enumerate(cells):
                 cell = QTableWidgetItem(text)
@@ -249,6 +248,11 @@ class ComparisonView(View):
                                          width=0.25, brush=plots.brush(plots.color(k), 190),
                                          name=label))
         plots.category_ticks(item.getAxis("bottom"), axes)
+
+
+    def _arrow(self, before: float, after: float) -> str:
+        return (f"{self.units.text(before, 'um', with_symbol=False)} → "
+                f"{self.units.text(after, 'um')}")
 
 
 def _percent(value: float) -> str:

@@ -17,7 +17,9 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import (
     QComboBox,
     QDoubleSpinBox,
+    QGroupBox,
     QHBoxLayout,
+    QHeaderView,
     QLabel,
     QPushButton,
     QSplitter,
@@ -28,6 +30,7 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
     QWidget,
 )
+from volucal.core.display_units import DisplayUnits
 from volucal.core.errors import AXIS_ERROR_IDS, COMPONENTS, ERROR_INFO, SQUARENESS_IDS, error_label
 from volucal.core.machine import AXES
 
@@ -79,12 +82,26 @@ class IdentificationView(View):
                 eid = f"E{component}{axis}"
                 plot = self.curves.addPlot(row=row, col=column)
                 plots.style(plot)
-                plot.setMenuEnabled(False)
-                plot.getAxis("left").setWidth(38)
+                plot.getAxis("left").setWidth(40)
+                # few, readable ticks in a small plot
+                plot.getAxis("left").setStyle(maxTickLevel=0)
+                plot.getAxis("bottom").setStyle(maxTickLevel=0)
                 self._plots[eid] = plot
-        self._square = self.curves.addPlot(row=len(AXES), col=0, colspan=len(COMPONENTS))
-        plots.style(self._square, "squareness (µrad) ± 2u")
-        self._square.setMaximumHeight(130)
+
+        self.squareness = QTableWidget(len(SQUARENESS_IDS), 4)
+        self.squareness.setObjectName("squarenessTable")
+        self.squareness.setHorizontalHeaderLabels(["squareness", "value", "U (k = 2)", "arcsec"])
+        self.squareness.verticalHeader().setVisible(False)
+        self.squareness.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
+        self.squareness.horizontalHeader().setSectionResizeMode(
+            0, QHeaderView.ResizeMode.Stretch)
+        square_box = QGroupBox("Squareness")
+        square_box.setMinimumWidth(360)
+        square_layout = QVBoxLayout(square_box)
+        square_layout.addWidget(self.squareness)
+        self.square_note = QLabel()
+        self.square_note.setWordWrap(True)
+        square_layout.addWidget(self.square_note)
 
         self.report = QTextBrowser()
         self.report.setObjectName("identifiabilityReport")
@@ -97,6 +114,8 @@ class IdentificationView(View):
         self.lines.setSortingEnabled(True)
         self.lines.itemSelectionChanged.connect(self._show_line_residual)
         self.residual_plot = plots.make_plot("Residual", "target (mm)", "residual")
+        self.residual_plot.setObjectName("residualPlot")
+        plots.add_legend(self.residual_plot.getPlotItem(), columns=6)
         self.residual_note = QLabel()
         self.residual_note.setWordWrap(True)
         residual_page = QSplitter(Qt.Orientation.Horizontal)
@@ -111,9 +130,14 @@ class IdentificationView(View):
         self.tabs.addTab(self.report, "Identifiability")
         self.tabs.addTab(residual_page, "Residual per line")
 
+        lower = QSplitter(Qt.Orientation.Horizontal)
+        lower.addWidget(self.tabs)
+        lower.addWidget(square_box)
+        lower.setStretchFactor(0, 3)
+        lower.setStretchFactor(1, 1)
         splitter = QSplitter(Qt.Orientation.Vertical)
         splitter.addWidget(self.curves)
-        splitter.addWidget(self.tabs)
+        splitter.addWidget(lower)
         splitter.setStretchFactor(0, 3)
         splitter.setStretchFactor(1, 2)
         layout = QVBoxLayout(self)
@@ -176,10 +200,14 @@ class IdentificationView(View):
     def _show(self, name: str) -> None:
         for plot in self._plots.values():
             plot.clear()
-        self._square.clear()
+            plot.setTitle(None)
+        self.squareness.clearContents()
+        self.square_note.clear()
         self.not_identified = set()
         self.lines.setRowCount(0)
         self.residual_plot.clear()
+        plots.style(self.residual_plot.getPlotItem(), "Residual", "target (mm)", "residual")
+        self.residual_note.clear()
         if not name or name not in self.document.results("identifications"):
             self.record = None
             self.summary.setText("no identification yet: press Identify" if
@@ -193,10 +221,10 @@ class IdentificationView(View):
         self._fill_lines(record)
         rank = record.identifiability
         um, urad = record.residual_rms()
-        rms = "" if math.isnan(um) else f", residual RMS {um:.3f} µm"
-        rms += "" if math.isnan(urad) else f" / {urad:.3f} µrad"
+        rms = "" if math.isnan(um) else f", residual RMS {self.units.text(um, 'um')}"
+        rms += "" if math.isnan(urad) else f" / {self.units.text(urad, 'urad')}"
         self.summary.setText(f"rank {rank.get('rank')} of {rank.get('unknowns')} unknowns, "
-                             f"σ₀ {record.sigma_scale:.3g}{rms}")
+                             f"σ₀ {record.sigma_scale:.3f}{rms}")
 
     def _draw_curves(self, record: IdentificationRecord) -> None:
         for eid in AXIS_ERROR_IDS:
@@ -204,40 +232,47 @@ class IdentificationView(View):
             entry = record.parameters[eid]
             identified = record.identified(eid)
             info = ERROR_INFO[eid]
-            unit = plots.unit_label(info.unit)
-            plot.setTitle(f"{eid} {info.paper} {unit}", size="8pt",
+            unit = self.units.symbol(info.unit)
+            plot.setTitle(f"{eid} {info.paper} ({unit})", size="8pt",
                           color="#000000" if identified else "#999999")
             if not identified:
                 self.not_identified.add(eid)
                 # inside the plot, so that the column keeps its width
                 note = pg.TextItem("not identified", color="#888888", anchor=(0, 0))
                 plot.addItem(note)
-                note.setPos(float(entry["position_mm"][0]), float(np.max(
+                note.setPos(float(entry["position_mm"][0]), float(np.max(self.units.convert(
                     np.asarray(entry["value"], dtype=float) + K_BAND * np.asarray(
-                        entry["std"], dtype=float))))
+                        entry["std"], dtype=float), info.unit))))
             x = np.asarray(entry["position_mm"], dtype=float)
-            value = np.asarray(entry["value"], dtype=float)
-            std = np.asarray(entry["std"], dtype=float)
+            value = self.units.convert(entry["value"], info.unit)
+            std = self.units.convert(entry["std"], info.unit)
             colour = plots.color(COMPONENTS.index(info.component)) if identified else "#aaaaaa"
             plots.add_band(plot, x, value - K_BAND * std, value + K_BAND * std, colour, 50)
             plot.addItem(pg.PlotDataItem(x, value, pen=plots.pen(colour, 1.8,
                                                                  dashed=not identified)))
-        values, errors, labels, brushes = [], [], [], []
-        for eid in SQUARENESS_IDS:
+        arcsec = DisplayUnits(angle="arcsec")
+        for row, eid in enumerate(SQUARENESS_IDS):
             entry = record.parameters[eid]
-            values.append(float(entry["value"][0]))
-            errors.append(K_BAND * float(entry["std"][0]))
+            value = float(entry["value"][0])
+            expanded = K_BAND * float(entry["std"][0])
             identified = record.identified(eid)
-            labels.append(error_label(eid) + ("" if identified else ", not identified"))
-            brushes.append(plots.brush(plots.color(4) if identified else "#bbbbbb", 160))
             if not identified:
                 self.not_identified.add(eid)
-        x = np.arange(len(values), dtype=float)
-        bars = pg.BarGraphItem(x=x, height=values, width=0.5, brushes=brushes)
-        self._square.addItem(bars)
-        self._square.addItem(pg.ErrorBarItem(x=x, y=np.asarray(values), height=2 * np.asarray(
-            errors), beam=0.15, pen=plots.pen("#000000", 1.2)))
-        plots.category_ticks(self._square.getAxis("bottom"), labels)
+            cells = [error_label(eid) + ("" if identified else ", not identified"),
+                     self.units.text(value, "urad"), self.units.text(expanded, "urad"),
+                     arcsec.text(value, "urad", with_symbol=False)]
+            for column, text in enumerate(cells):
+                cell = QTableWidgetItem(text)
+                cell.setToolTip(ERROR_INFO[eid].description)
+                if column:
+                    cell.setTextAlignment(Qt.AlignmentFlag.AlignRight
+                                          | Qt.AlignmentFlag.AlignVCenter)
+                if not identified:
+                    cell.setForeground(Qt.GlobalColor.gray)
+                self.squareness.setItem(row, column, cell)
+        self.squareness.resizeColumnsToContents()
+        self.square_note.setText("Angle between the axes (ISO 230-1 signs); U is the expanded "
+                                 "uncertainty, k = 2.")
 
     def _fill_report(self, record: IdentificationRecord) -> None:
         ident = record.identifiability
@@ -251,11 +286,26 @@ class IdentificationView(View):
             parts.append("</ul>")
         else:
             parts.append("<p>Every error is identified by this plan.</p>")
-        redundant = ident.get("redundant_lines", []) or []
-        if redundant:
-            parts.append(f"<p><b>Redundant lines</b> (the plan stays identifiable without each "
-                         f"of them; leave-one-line-out cross-validation uses them): "
-                         f"{', '.join(redundant)}</p>")
+        redundant = list(ident.get("redundant_lines", []) or [])
+        source = ident.get("redundancy_from")
+        names = self.document.results("identifications")
+        if not redundant and source is None and record.effects and "main" in names and \
+                record.name != "main":
+            # a loop refit stored before the trees carried the plan's redundancy: the plan's is
+            # that of the 21-error fit
+            redundant = list(self.document.identification("main").identifiability.get(
+                "redundant_lines", []) or [])
+            source = "the 21-error fit 'main'"
+        lines = len(self.document.line_names())
+        origin = f" (tested on {source})" if source else ""
+        if redundant and len(redundant) == lines:
+            parts.append(f"<p><b>Every one of the {lines} lines is redundant</b>{origin}: the "
+                         "plan stays identifiable without any one of them, so cross-validation "
+                         "leaves one line out at a time.</p>")
+        elif redundant:
+            parts.append(f"<p><b>Redundant lines</b>{origin} ({len(redundant)} of {lines}: the "
+                         f"plan stays identifiable without each of them; leave-one-line-out "
+                         f"cross-validation uses them): {', '.join(redundant)}</p>")
         else:
             parts.append("<p>No line is redundant: cross-validation holds out blocks of "
                          "targets.</p>")
@@ -276,20 +326,24 @@ class IdentificationView(View):
     def _fill_lines(self, record: IdentificationRecord) -> None:
         if record.readings is None:
             self.residual_note.setText(
-                "This identification was stored without its residuals (projects written by "
-                "volucal calibrate keep only the model): press Identify to compute them.")
+                "This identification was stored without its residuals (by an older volucal, "
+                "which kept only the model): press Identify to compute them.")
             return
         self.residual_note.setText("Select a line to see its residual by run.")
         rows = record.readings.line_summary()
         self.lines.setSortingEnabled(False)
         self.lines.setRowCount(len(rows))
         for r, row in enumerate(rows):
-            cells = [row["line"], row["group"], row["readings"], row["rms"], row["max_abs"],
-                     plots.unit_label(row["unit"])]
+            unit = row["unit"]
+            cells = [row["line"], row["group"], row["readings"],
+                     round(self.units.value(row["rms"], unit), self.units.unit(unit).decimals + 1),
+                     round(self.units.value(row["max_abs"], unit),
+                           self.units.unit(unit).decimals + 1),
+                     self.units.symbol(unit)]
             for c, value in enumerate(cells):
                 item = QTableWidgetItem()
                 if isinstance(value, float):
-                    item.setData(Qt.ItemDataRole.DisplayRole, round(value, 4))
+                    item.setData(Qt.ItemDataRole.DisplayRole, value)
                 elif isinstance(value, int):
                     item.setData(Qt.ItemDataRole.DisplayRole, value)
                 else:
@@ -309,10 +363,11 @@ class IdentificationView(View):
         name = cell.text()
         result = evidence.line_residual(self.record.readings, name)
         item = self.residual_plot.getPlotItem()
-        plots.style(item, result.title, result.x_label, result.y_label)
+        plots.style(item, result.title, result.x_label, result.y_axis(self.units))
         for index, series in enumerate(result.series):
-            item.addItem(pg.PlotDataItem(series.x, series.y, pen=plots.pen(plots.color(index),
-                                                                             1.2)))
+            item.addItem(pg.PlotDataItem(series.x, result.y_shown(series.y, self.units),
+                                         pen=plots.pen(plots.color(index), 1.2),
+                                         name=series.name))
 
 
 def _short(value: object) -> str:

@@ -114,6 +114,7 @@ class LoopView(View):
 
         self.unexplained = QListWidget()
         self.unexplained.setObjectName("unexplained")
+        self.unexplained.setWordWrap(True)
         unexplained_box = QGroupBox("Still unexplained, and warnings")
         QVBoxLayout(unexplained_box).addWidget(self.unexplained)
 
@@ -158,6 +159,7 @@ class LoopView(View):
         splitter.addWidget(right)
         splitter.setStretchFactor(0, 2)
         splitter.setStretchFactor(1, 3)
+        splitter.setSizes([520, 780])
         layout = QVBoxLayout(self)
         layout.addLayout(top)
         layout.addWidget(splitter, 1)
@@ -279,6 +281,9 @@ class LoopView(View):
         self.effects.clear()
         self.unexplained.clear()
         self.evidence_plot.clear()
+        self.evidence_plot.getPlotItem().setLogMode(x=False, y=False)
+        plots.style(self.evidence_plot.getPlotItem(), "Evidence", "", "")
+        self.evidence_note.clear()
         self.rms_plot.clear()
         self.rms_table.setRowCount(0)
         self.record = None
@@ -352,7 +357,7 @@ class LoopView(View):
             for effect in record.report.get("effects", []):
                 self.effects.addItem(f"{effect.get('kind')} {effect.get('axis') or ''} (kept)")
             self.effects_note.setText("This loop was stored without its effect definitions "
-                                      "(volucal calibrate): close the loop again to accept or "
+                                      "(by an older volucal): close the loop again to accept or "
                                       "reject effects.")
         self.effects.blockSignals(False)
 
@@ -382,22 +387,35 @@ class LoopView(View):
         groups = [g for g in GROUP_ORDER if g in before or g in after]
         self.rms_table.setRowCount(len(groups))
         for row, group in enumerate(groups):
-            unit = "µrad" if group == "angular" else "µm"
-            for column, text in enumerate((group, _num(before.get(group)), _num(after.get(group)),
-                                           unit)):
-                self.rms_table.setItem(row, column, QTableWidgetItem(text))
-        x = np.arange(len(groups), dtype=float)
+            unit = "urad" if group == "angular" else "um"
+            for column, text in enumerate((group,
+                                           self.units.text(before.get(group), unit, False, 1),
+                                           self.units.text(after.get(group), unit, False, 1),
+                                           self.units.symbol(unit))):
+                cell = QTableWidgetItem(text)
+                if column in (1, 2):
+                    cell.setTextAlignment(Qt.AlignmentFlag.AlignRight
+                                          | Qt.AlignmentFlag.AlignVCenter)
+                self.rms_table.setItem(row, column, cell)
+        self.rms_table.resizeColumnsToContents()
         item = self.rms_plot.getPlotItem()
-        item.addItem(pg.BarGraphItem(x=x - 0.2, height=[before.get(g, 0.0) for g in groups],
-                                     width=0.38, brush=plots.brush(plots.BACKWARD, 170),
+        item.setLabel("left", f"RMS ({self.units.symbol('um')}; angular "
+                              f"{self.units.symbol('urad')})")
+        shown = [[self.units.value(values.get(g, 0.0) or 0.0, "urad" if g == "angular" else "um")
+                  for g in groups] for values in (before, after)]
+        x = np.arange(len(groups), dtype=float)
+        item.addItem(pg.BarGraphItem(x=x - 0.2, height=shown[0], width=0.38,
+                                     brush=plots.brush(plots.BACKWARD, 170),
                                      name="before the loop"))
-        item.addItem(pg.BarGraphItem(x=x + 0.2, height=[after.get(g, 0.0) for g in groups],
-                                     width=0.38, brush=plots.brush(plots.FORWARD, 170),
+        item.addItem(pg.BarGraphItem(x=x + 0.2, height=shown[1], width=0.38,
+                                     brush=plots.brush(plots.FORWARD, 170),
                                      name="after the loop"))
         plots.category_ticks(item.getAxis("bottom"), groups)
 
     def _show_evidence(self) -> None:
         self.evidence_plot.clear()
+        self.evidence_plot.getPlotItem().setLogMode(x=False, y=False)
+        plots.style(self.evidence_plot.getPlotItem(), "Evidence", "", "")
         self.evidence_note.clear()
         rows = self.steps.selectionModel().selectedRows() if self.steps.selectionModel() else []
         if self.record is None or not rows:
@@ -407,8 +425,9 @@ class LoopView(View):
         source = self._after if use_after else self._before
         if source is None or source.readings is None or self.document.machine is None:
             self.evidence_note.setText(
-                "The residuals of this loop are not in the project (volucal calibrate keeps "
-                "only the models): close the loop again to see the evidence plots.")
+                "The residuals of this loop are not in the project (it was written by an older "
+                "volucal, which kept only the models): close the loop again to see the evidence "
+                "plots.")
             return
         effect = dict(step.get("effect", {}))
         for candidate in self.record.candidates:
@@ -416,16 +435,17 @@ class LoopView(View):
                 effect["effect"] = candidate.get("effect")
         result = evidence.for_effect(source.readings, effect, self.document.machine)
         item = self.evidence_plot.getPlotItem()
-        plots.style(item, result.title, result.x_label, result.y_label)
+        plots.style(item, result.title, result.x_label, result.y_axis(self.units))
         item.setLogMode(x=result.log_x, y=False)
         for index, series in enumerate(result.series):
             colour = plots.color(index)
+            y = result.y_shown(series.y, self.units)
             if series.style == "points":
-                item.addItem(pg.ScatterPlotItem(series.x, series.y, size=3, pen=None,
+                item.addItem(pg.ScatterPlotItem(series.x, y, size=3, pen=None,
                                                 brush=plots.brush(colour, 150),
                                                 name=series.name if index < 8 else None))
             else:
-                item.addItem(pg.PlotDataItem(series.x, series.y, pen=plots.pen(colour, 1.4),
+                item.addItem(pg.PlotDataItem(series.x, y, pen=plots.pen(colour, 1.4),
                                              name=series.name if index < 8 else None))
         for x, label in result.markers:
             plots.add_marker(item, math.log10(x) if result.log_x else x, label)

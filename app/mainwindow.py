@@ -491,7 +491,8 @@ class MainWindow(QMainWindow):
 
     def import_logs(self, paths: list[Path] | None = None) -> ImportWizard:
         """Open the import wizard (on ``paths`` when given)."""
-        wizard = ImportWizard(self.document.machine, paths or [], self)
+        wizard = ImportWizard(self.document.machine, paths or [], self,
+                              existing_lines=self.document.line_names())
         wizard.accepted.connect(lambda: self._apply_import(wizard))
         wizard.finished.connect(lambda _r: wizard.deleteLater())
         self.wizard = wizard
@@ -503,7 +504,8 @@ class MainWindow(QMainWindow):
         if result is None:
             return
         try:
-            self.document.import_lines(result)
+            self.document.import_lines(result,
+                                       replace=wizard.plan_page.replace_existing.isChecked())
         except UserError as exc:
             show_error(self, "Cannot add the lines", str(exc))
             return

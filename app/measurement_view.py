@@ -40,7 +40,7 @@ from .view_base import View
 
 FIGURES = (
     ("A", "accuracy A"), ("E", "systematic positioning error E"), ("R", "repeatability R"),
-    ("B", "reversal value B"), ("M", "mean bidirectional positioning error M"),
+    ("B", "reversal value B"), ("M", "mean bidirectional error M"),
     ("A_up", "accuracy A↑"), ("A_down", "accuracy A↓"), ("E_up", "systematic E↑"),
     ("E_down", "systematic E↓"), ("R_up", "repeatability R↑"), ("R_down", "repeatability R↓"),
     ("mean_reversal", "mean reversal B̄"),

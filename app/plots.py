@@ -208,14 +208,14 @@ def write_csv(plot: pg.PlotItem, path: Path) -> Path:
 def export_plot(plot: pg.PlotItem, path: str | Path) -> Path:
     """Save ``plot`` by the file's suffix: ``.png`` (twice the screen size), ``.svg`` or
     ``.csv`` (its data, :func:`write_csv`)."""
-    from pyqtgraph.exporters import ImageExporter, SVGExporter
+    from pyqtgraph.exporters import ImageExporter
 
     target = Path(path)
     suffix = target.suffix.lower()
     if suffix == ".csv":
         return write_csv(plot, target)
     if suffix == ".svg":
-        SVGExporter(plot).export(str(target))
+        write_svg(plot, target)
     elif suffix == ".png":
         exporter = ImageExporter(plot)
         width = max(int(plot.sceneBoundingRect().width()) * 2, 800)
@@ -226,6 +226,35 @@ def export_plot(plot: pg.PlotItem, path: str | Path) -> Path:
     if not target.is_file():
         raise UserError(f"{target}: the plot could not be written")
     return target
+
+
+def write_svg(plot: pg.PlotItem, path: Path) -> Path:
+    """The plot as an SVG drawing, by Qt's own SVG generator (pyqtgraph's SVG exporter cannot
+    read the paths Qt 6.11 writes): the plot's part of the scene, at its size on screen."""
+    from PySide6.QtCore import QRectF, QSize
+    from PySide6.QtGui import QPainter
+    from PySide6.QtSvg import QSvgGenerator
+
+    source = plot.sceneBoundingRect()
+    generator = QSvgGenerator()
+    # pyqtgraph caches drawings as QPictures made on the screen; replayed on a device of another
+    # resolution they are scaled: draw the SVG at the screen's resolution
+    views = plot.scene().views()
+    generator.setResolution(views[0].logicalDpiX() if views else 96)
+    generator.setFileName(str(path))
+    generator.setSize(QSize(int(source.width()), int(source.height())))
+    generator.setViewBox(QRectF(0, 0, source.width(), source.height()))
+    title = _plain_text(str(plot.titleLabel.text or ""))
+    generator.setTitle(title or "volucal plot")
+    generator.setDescription("drawn by volucal")
+    painter = QPainter()
+    if not painter.begin(generator):
+        raise UserError(f"{path}: cannot write an SVG file there")
+    try:
+        plot.scene().render(painter, QRectF(0, 0, source.width(), source.height()), source)
+    finally:
+        painter.end()
+    return path
 
 
 def add_export(plot: pg.PlotItem) -> None:

@@ -154,7 +154,7 @@ class LoopRecord:
     """A closed loop as the loop view shows it.
 
     ``candidates``: every effect the loop tried — ``{"effect": effect_to_json(...), "label",
-    "kind", "axis", "kept", "step"}`` — empty for projects written by ``volucal calibrate``.
+    "kind", "axis", "kept", "step"}`` — empty for projects written by an older volucal.
     ``decisions``: the user's accept/reject edits (labels) when the loop was refitted by hand.
     """
 

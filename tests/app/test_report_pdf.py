@@ -1,8 +1,8 @@
 """The calibration report of the demo, rendered to PDF and read back with poppler's pdftotext and
 pdfinfo (Debian poppler-utils; .ci/install-report-tools.sh installs them).
 
-The demo pipeline runs once for the module (volucal.core.calibrate, then the demo's verification
-on the virtual machine, as ``volucal demo`` does), which takes about a minute.
+The demo pipeline runs once for the session (the ``demo_run`` fixture: volucal.core.calibrate, then
+the demo's verification on the virtual machine, as ``volucal demo`` does), about a minute.
 """
 
 import hashlib
@@ -15,30 +15,14 @@ from pathlib import Path
 import pytest
 from volucal.app.report import write_report
 from volucal.core import cli
-from volucal.core.calibrate import CalibrationRequest, calibrate, write_json_atomic
-from volucal.core.commands.demo_cmd import verify_demo
 from volucal.core.conformance import CONFORMS, DOES_NOT_CONFORM, NO_DECISION, decide
 from volucal.core.errors import ERROR_IDS
 from volucal.core.identify import UncertaintyBudget
 from volucal.core.iso230_2 import evaluate
 from volucal.core.project import Project
-from volucal.core.resources import demo_plan
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 TOOLS = ("pdftotext", "pdfinfo")
-
-
-@pytest.fixture(scope="module")
-def demo_run(tmp_path_factory):
-    """demo.h5, report.json (with the verified rates) and compensation/ in one folder."""
-    folder = tmp_path_factory.mktemp("demo")
-    # fewer EFAST samples than the demo's 1400 per factor: the report only lays them out
-    result = calibrate(CalibrationRequest(
-        demo_plan(), project_path=folder / "demo.h5", report_path=folder / "report.json",
-        export_dir=folder / "compensation", sensitivity_n=400))
-    verify_demo(result)
-    write_json_atomic(folder / "report.json", result.report)
-    return folder
 
 
 @pytest.fixture(scope="module")
