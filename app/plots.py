@@ -31,6 +31,8 @@ BACKWARD = "#d62728"
 BAND = "#2ca02c"
 QUANTITY_COLOR = {"linear": "#1f77b4", "straightness": "#2ca02c", "angular": "#ff7f0e"}
 UNIT_LABEL = {"um": "µm", "urad": "µrad", "mm": "mm"}
+#: Tick labels never carry more decimals than this (a degenerate range has a tiny spacing).
+MAX_DECIMALS = 9
 
 
 def color(index: int) -> str:
@@ -67,6 +69,8 @@ def plain_axis(axis: pg.AxisItem) -> pg.AxisItem:
         axis._updateLabel()
 
     def tick_strings(values: Sequence[float], scale: float, spacing: float) -> list[str]:
+        if axis.logMode:  # decades: pyqtgraph's own labels
+            return list(axis.logTickStrings(values, scale, spacing))
         return tick_texts(values, spacing * scale, scale)
 
     axis.autoSIPrefix = False
@@ -85,6 +89,7 @@ def tick_texts(values: Sequence[float], spacing: float, scale: float = 1.0) -> l
         places = max(0, math.ceil(-math.log10(spacing) - 1e-9))
         if abs(spacing * 10**places - round(spacing * 10**places)) > 1e-6:
             places += 1  # 0.25-type spacings
+        places = min(places, MAX_DECIMALS)
     out = []
     for value in values:
         text = f"{value * scale:.{places}f}"
