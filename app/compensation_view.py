@@ -370,6 +370,9 @@ class CompensationView(View):
         self.export_button.setEnabled(bool(names) and not self.runner.busy)
         if not names:
             self.status.setText("identify the errors first: there is nothing to compensate yet")
+        if self.preview is not None:  # shown again in the current units
+            self._show_table()
+            self._show_rates()
 
     def select(self, name: str | None) -> None:
         if self._stale:
@@ -428,12 +431,20 @@ class CompensationView(View):
         table = self.preview.result.tables.axis.get(axis)
         if table is None:
             return
-        columns = (table.position_mm, table.correction_forward_um, table.correction_backward_um,
-                   table.error_forward_um, table.error_backward_um)
+        units = self.units
+        symbol = units.symbol("um")
+        self.table.setHorizontalHeaderLabels(
+            ["position mm", f"correction ↑ {symbol}", f"correction ↓ {symbol}",
+             f"error ↑ {symbol}", f"error ↓ {symbol}"])
+        stored_um = (table.correction_forward_um, table.correction_backward_um,
+                     table.error_forward_um, table.error_backward_um)
+        columns = (table.position_mm, *(units.convert(values, "um") for values in stored_um))
         self.table.setRowCount(len(table.position_mm))
         for row in range(len(table.position_mm)):
-            for column, values in enumerate(columns):
-                item = QTableWidgetItem(f"{values[row]:.4f}")
+            for column in range(len(columns)):
+                text = (f"{table.position_mm[row]:g}" if column == 0 else
+                        units.text(float(stored_um[column - 1][row]), "um", False, 1))
+                item = QTableWidgetItem(text)
                 item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
                 if table.beyond_range[row]:
                     item.setToolTip("beyond the measured range: the end value is held")
@@ -441,9 +452,10 @@ class CompensationView(View):
                 self.table.setItem(row, column, item)
         item = self.table_plot.getPlotItem()
         item.setTitle(f"{axis} axis table ({self.preview.result.format})", size="10pt")
-        item.addItem(pg.PlotDataItem(table.position_mm, table.correction_forward_um,
+        item.setLabel("left", f"correction ({symbol})")
+        item.addItem(pg.PlotDataItem(table.position_mm, columns[1],
                                      pen=plots.pen(plots.FORWARD, 2), name="correction ↑"))
-        item.addItem(pg.PlotDataItem(table.position_mm, table.correction_backward_um,
+        item.addItem(pg.PlotDataItem(table.position_mm, columns[2],
                                      pen=plots.pen(plots.BACKWARD, 1.5, dashed=True),
                                      name="correction ↓"))
         low, high = table.measured_range_mm
@@ -469,13 +481,14 @@ class CompensationView(View):
         item = self.rms_plot.getPlotItem()
         item.clear()
         first = next(iter(methods.values()))
-        before = [first.rates.rms_before_um[a] for a in AXES]
+        before = [self.units.value(first.rates.rms_before_um[a], "um") for a in AXES]
+        item.setLabel("left", f"RMS ({self.units.symbol('um')})")
         x = np.arange(3, dtype=float)
         width = 0.8 / (len(methods) + 1)
         item.addItem(pg.BarGraphItem(x=x - 0.4 + width / 2, height=before, width=width,
                                      brush=plots.brush("#555555", 200), name="uncompensated"))
         for k, (name, method) in enumerate(methods.items(), start=1):
-            after = [method.rates.rms_after_um[a] for a in AXES]
+            after = [self.units.value(method.rates.rms_after_um[a], "um") for a in AXES]
             item.addItem(pg.BarGraphItem(x=x - 0.4 + width * (k + 0.5), height=after,
                                          width=width, brush=plots.brush(plots.color(k - 1), 200),
                                          name=name))

@@ -36,6 +36,7 @@ from volucal.core.machine import AXES
 
 from . import evidence, jobs, plots
 from .document import ProjectDocument
+from .engine import ProcessCall
 from .records import IdentificationRecord, Live, identify_options
 from .settings import Preferences
 from .view_base import View
@@ -126,6 +127,7 @@ class IdentificationView(View):
         right_layout.addWidget(self.residual_note)
         right_layout.addWidget(self.residual_plot, 1)
         residual_page.addWidget(right)
+        residual_page.setSizes([440, 520])
         self.tabs = QTabWidget()
         self.tabs.addTab(self.report, "Identifiability")
         self.tabs.addTab(residual_page, "Residual per line")
@@ -145,6 +147,7 @@ class IdentificationView(View):
         layout.addWidget(splitter, 1)
         self.record: IdentificationRecord | None = None
         self.not_identified: set[str] = set()
+        self._show_next: str | None = None
 
     # ---- running ---------------------------------------------------------------------------
 
@@ -158,18 +161,16 @@ class IdentificationView(View):
         self.summary.setText("identifying…")
         self.run_task(
             "identification",
-            lambda progress, cancel: jobs.run_identification(measurement, options, progress,
-                                                             cancel),
+            ProcessCall(jobs.run_identification, (measurement, options)),
             self._identified,
             on_cancel=lambda: self.summary.setText("identification cancelled"),
         )
 
     def _identified(self, result: jobs.Identified) -> None:
-        record = IdentificationRecord.from_identification("main", result.identification,
-                                                          result.options)
         key = ("identifications", "main")
+        self._show_next = "main"  # the refresh the edit causes draws it, once
         self.document.put_results("identify the 21 errors", {key: result.tree()},
-                                  {key: Live(result.identification, record)})
+                                  {key: Live(result.identification, result.record)})
         self.select("main")
 
     def _busy(self, busy: bool) -> None:
@@ -177,25 +178,27 @@ class IdentificationView(View):
 
     # ---- showing ---------------------------------------------------------------------------
 
-    def refresh(self) -> None:
-        current = self.name_box.currentText()
+    def refresh(self, wanted: str | None = None) -> None:
+        current = wanted or self._show_next or self.name_box.currentText()
+        self._show_next = None
         names = self.document.results("identifications")
-        self.name_box.blockSignals(True)
+        self.name_box.blockSignals(True)  # drawn once, below
         self.name_box.clear()
         self.name_box.addItems(names)
-        self.name_box.blockSignals(False)
-        self.run_button.setEnabled(bool(self.document.line_names()) and not self.runner.busy)
         if names:
             self.name_box.setCurrentText(current if current in names else
                                          ("loop" if "loop" in names else names[0]))
+        self.name_box.blockSignals(False)
+        self.run_button.setEnabled(bool(self.document.line_names()) and not self.runner.busy)
         self._show(self.name_box.currentText())
 
     def select(self, name: str | None) -> None:
-        if self._stale:
-            self._refresh_now()
         if name and name in self.document.results("identifications"):
-            self.name_box.setCurrentText(name)
-            self._show(name)
+            if self._stale or name != self.name_box.currentText():
+                self._stale = False
+                self.refresh(name)
+        elif self._stale:
+            self._refresh_now()
 
     def _show(self, name: str) -> None:
         for plot in self._plots.values():

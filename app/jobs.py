@@ -65,56 +65,77 @@ def budget_of(project: Project) -> UncertaintyBudget:
 
 @dataclass(frozen=True, eq=False)
 class Identified:
+    """An identification with what the window stores and shows of it, made where it was
+    computed (a worker process): the GUI thread only files them."""
+
     identification: Identification
     options: IdentifyOptions
+    record: IdentificationRecord
+    stored: dict[str, Any]
 
     def tree(self) -> dict[str, Any]:
-        return identification_result_tree(self.identification, self.options)
+        return self.stored
 
 
 def run_identification(measurement: Measurement, options: IdentifyOptions,
                        progress: ProgressCallback | None = None,
-                       cancel: CancelToken | None = None) -> Identified:
-    return Identified(identify(measurement, options, progress=progress, cancel=cancel), options)
+                       cancel: CancelToken | None = None, name: str = "main") -> Identified:
+    identification = identify(measurement, options, progress=progress, cancel=cancel)
+    return Identified(identification, options,
+                      IdentificationRecord.from_identification(name, identification, options),
+                      identification_result_tree(identification, options))
 
 
 @dataclass(frozen=True, eq=False)
 class LoopRun:
+    """A closed loop with its project trees and view records (made in the worker)."""
+
     loop: LoopResult
     options: LoopOptions
+    stored: dict[tuple[str, str], dict[str, Any]]
+    records: dict[tuple[str, str], Any]
+
+    @classmethod
+    def of(cls, loop: LoopResult, options: LoopOptions) -> LoopRun:
+        identify_options = options.identify
+        records = {
+            ("identifications", "main"): IdentificationRecord.from_identification(
+                "main", loop.base, identify_options),
+            ("identifications", "loop"): IdentificationRecord.from_identification(
+                "loop", loop.final, identify_options, loop_identifiability(loop)),
+            ("loops", "main"): LoopRecord.from_loop("main", loop),
+        }
+        return cls(loop, options, loop_result_trees(loop, identify_options), records)
 
     def trees(self) -> dict[tuple[str, str], dict[str, Any]]:
         """The project results of a loop: the identifications before and after, the report."""
-        return loop_result_trees(self.loop, self.options.identify)
+        return self.stored
 
     def live(self) -> dict[tuple[str, str], Any]:
         """The same results as the document's live objects (core object and view record)."""
-        loop = self.loop
-        identify_options = self.options.identify
-        return {
-            ("identifications", "main"): Live(loop.base, IdentificationRecord.from_identification(
-                "main", loop.base, identify_options)),
-            ("identifications", "loop"): Live(loop.final, IdentificationRecord.from_identification(
-                "loop", loop.final, identify_options, loop_identifiability(loop))),
-            ("loops", "main"): Live(loop, LoopRecord.from_loop("main", loop)),
-        }
+        values = {("identifications", "main"): self.loop.base,
+                  ("identifications", "loop"): self.loop.final, ("loops", "main"): self.loop}
+        return {key: Live(values[key], record) for key, record in self.records.items()}
 
 
 def run_loop(measurement: Measurement, options: LoopOptions,
              progress: ProgressCallback | None = None,
              cancel: CancelToken | None = None) -> LoopRun:
-    return LoopRun(close_loop(measurement, options, progress, cancel), options)
+    return LoopRun.of(close_loop(measurement, options, progress, cancel), options)
 
 
 @dataclass(frozen=True, eq=False)
 class Refit:
-    """The 21 errors refitted with the effects the user accepted."""
+    """The 21 errors refitted with the effects the user accepted, with the record and tree of
+    the identification it replaces (``name``)."""
 
     identification: Identification
     cross_validation: CrossValidation
     options: IdentifyOptions
     accepted: tuple[str, ...]
     rejected: tuple[str, ...]
+    record: IdentificationRecord
+    stored: dict[str, Any]
 
 
 def refit_with_effects(
@@ -126,6 +147,7 @@ def refit_with_effects(
     rejected: Sequence[str] = (),
     progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
+    name: str = "loop",
 ) -> Refit:
     """Identify again with exactly ``effects`` (the loop's refit: no redundancy analysis, the
     previous model as the linearisation point) and cross-validate as the loop does."""
@@ -135,8 +157,14 @@ def refit_with_effects(
     check(cancel)
     report(progress, 0.85, "cross-validating")
     cv = cross_validate(result.system, result.readings, list(redundant_lines))
+    # the plan's redundant lines, as the loop's own final identification carries them
+    identifiability = dict(result.identifiability.to_json())
+    identifiability["redundant_lines"] = list(redundant_lines)
+    identifiability["redundancy_from"] = "the 21-error fit before the loop"
     report(progress, 1.0, "refitted")
-    return Refit(result, cv, options, tuple(e.label for e in effects), tuple(rejected))
+    return Refit(result, cv, options, tuple(e.label for e in effects), tuple(rejected),
+                 IdentificationRecord.from_identification(name, result, options, identifiability),
+                 identification_result_tree(result, options, identifiability))
 
 
 # --------------------------------------------------------------------------------------------
@@ -177,7 +205,7 @@ def build_demo_project(path: Path, sensitivity_n: int = 1400,
     loop = result.loop
     budget_options = replace(options, identify=replace(options.identify,
                                                        budget=loop.base.budget))
-    run = LoopRun(loop, budget_options)
+    run = LoopRun.of(loop, budget_options)
     setup = SensitivitySetup.identified(result.source.model, loop.final.covariance,
                                         n=sensitivity_n, identification="loop")
     check(cancel)

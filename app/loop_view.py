@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -41,12 +42,12 @@ from volucal.core.userror import UserError
 
 from . import evidence, jobs, plots
 from .document import ProjectDocument
+from .engine import ProcessCall
 from .records import (
     IdentificationRecord,
     Live,
     LoopRecord,
     effect_from_json,
-    identification_result_tree,
     identify_options,
     stored_model,
 )
@@ -184,7 +185,7 @@ class LoopView(View):
         self.summary.setText("closing the loop…")
         self.run_task(
             "closed loop",
-            lambda progress, cancel: jobs.run_loop(measurement, options, progress, cancel),
+            ProcessCall(jobs.run_loop, (measurement, options)),
             self._looped,
             on_cancel=lambda: self.summary.setText("loop cancelled"),
         )
@@ -220,8 +221,8 @@ class LoopView(View):
         self.summary.setText("refitting…")
         self.run_task(
             "refit with the accepted effects",
-            lambda progress, cancel: jobs.refit_with_effects(
-                measurement, chosen, options, initial, redundant, rejected, progress, cancel),
+            ProcessCall(partial(jobs.refit_with_effects, name=record.final),
+                        (measurement, chosen, options, initial, redundant, rejected)),
             self._refitted,
             on_cancel=lambda: self.summary.setText("refit cancelled"),
         )
@@ -240,16 +241,13 @@ class LoopView(View):
         }
         candidates = tuple({**c, "kept": c["label"] in refit.accepted} for c in record.candidates)
         new_record = replace(record, candidates=candidates, decisions=decisions)
-        ident_record = IdentificationRecord.from_identification(final, refit.identification,
-                                                                refit.options)
         trees = {
-            ("identifications", final): identification_result_tree(refit.identification,
-                                                                    refit.options),
+            ("identifications", final): refit.stored,
             ("loops", record.name): new_record.to_tree(),
         }
         live_loop = self.document.live.get(("loops", record.name))
         live = {
-            ("identifications", final): Live(refit.identification, ident_record),
+            ("identifications", final): Live(refit.identification, refit.record),
             ("loops", record.name): Live(None if live_loop is None else live_loop.value,
                                          new_record),
         }
@@ -306,28 +304,40 @@ class LoopView(View):
         self._fill_rms(report)
         rms = report.get("residual_rms_um", {})
         cv = report.get("cv_rms_um", {})
-        text = (f"RMS {_num(rms.get('before_loop'))} → {_num(rms.get('after_loop'))} µm, "
-                f"cross-validated {_num(cv.get('before_loop'))} → {_num(cv.get('after_loop'))} "
-                f"µm ({cv.get('method', '?')})")
+        unit = self.units.symbol("um")
+
+        def um(value: Any) -> str:
+            return _num(None if value is None else self.units.value(float(value), "um"))
+
+        text = (f"RMS {um(rms.get('before_loop'))} → {um(rms.get('after_loop'))} {unit}, "
+                f"cross-validated {um(cv.get('before_loop'))} → {um(cv.get('after_loop'))} "
+                f"{unit} ({cv.get('method', '?')})")
         if record.decisions:
-            text += (f"; refitted by hand: RMS {_num(record.decisions.get('rms_um_after'))} µm, "
-                     f"CV {_num(record.decisions.get('cv_rms_um_after'))} µm")
+            text += (f"; refitted by hand: RMS {um(record.decisions.get('rms_um_after'))} "
+                     f"{unit}, CV {um(record.decisions.get('cv_rms_um_after'))} {unit}")
         self.summary.setText(text)
         self.refit_button.setEnabled(self._can_refit() and not self.runner.busy)
         if self.steps.rowCount():
             self.steps.selectRow(0)
 
     def _fill_steps(self, steps: list[Mapping[str, Any]]) -> None:
+        symbol = self.units.symbol("um")
+        self.steps.setHorizontalHeaderLabels(
+            [name.replace("µm", symbol) for name in STEP_COLUMNS])
         self.steps.setRowCount(len(steps))
+
+        def um(value: Any) -> str:
+            return _num(None if value is None else self.units.value(float(value), "um"))
+
         for row, step in enumerate(steps):
             effect = step.get("effect", {})
             ev = effect.get("evidence", {})
             rms, cv = step.get("rms_um", {}), step.get("cv_rms_um", {})
             cells = [
                 str(step.get("step")), str(effect.get("label", effect.get("kind"))),
-                _num(ev.get("F")), _num(ev.get("log10_false_alarm")), _num(ev.get("magnitude_um")),
-                f"{_num(rms.get('before'))} → {_num(rms.get('after'))}",
-                f"{_num(cv.get('before'))} → {_num(cv.get('after'))}",
+                _num(ev.get("F")), _num(ev.get("log10_false_alarm")), um(ev.get("magnitude_um")),
+                f"{um(rms.get('before'))} → {um(rms.get('after'))}",
+                f"{um(cv.get('before'))} → {um(cv.get('after'))}",
                 "kept" if step.get("kept") else "rejected",
             ]
             for column, text in enumerate(cells):

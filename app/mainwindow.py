@@ -42,6 +42,7 @@ from .comparison_view import ComparisonView
 from .compensation_view import CompensationView
 from .dialogs import PreferencesDialog, about_box, show_bug, show_error
 from .document import ProjectDocument
+from .engine import ProcessCall, prestart
 from .factors import SensitivityRecord
 from .identification_view import IdentificationView
 from .import_wizard import ImportWizard
@@ -146,6 +147,7 @@ class MainWindow(QMainWindow):
 
         self._build_menus()
         self._connect_document()
+        prestart()  # a worker process for the first long computation, ready when it is asked
         self.show_view("machine")
         self._update_title()
 
@@ -544,7 +546,7 @@ class MainWindow(QMainWindow):
         self.status_text.setText("calibrating the demo data (once; about a minute)…")
         self.runner.run(
             "demo project",
-            lambda progress, cancel: jobs.build_demo_project(path, n, progress, cancel),
+            ProcessCall(jobs.build_demo_project, (path, n)),
             self._demo_built,
             lambda message: show_error(self, "Demo project", message),
             lambda text: show_bug(self, "Demo project", text),
@@ -621,7 +623,9 @@ class MainWindow(QMainWindow):
         if not self._tasks:
             self.progress.setVisible(False)
             self.cancel_button.setVisible(False)
-            self.status_text.setText(f"{task.title}: {task.outcome or 'stopped'}")
+            if self.status_text.text().startswith(f"{task.title}:"):
+                # (a result callback may have written its own message: it stays)
+                self.status_text.setText(f"{task.title}: {task.outcome or 'stopped'}")
 
     @property
     def busy(self) -> bool:

@@ -36,6 +36,7 @@ from volucal.core.userror import UserError
 
 from . import plots
 from .document import ProjectDocument
+from .engine import ProcessCall
 from .factors import (
     DISTRIBUTIONS,
     RANKING_GRID_MM,
@@ -369,8 +370,7 @@ class SensitivityView(View):
         self.status.setText(f"EFAST {what} running…")
         self.run_task(
             f"sensitivity {what}",
-            lambda progress, cancel: setup.run(model, covariance, map_step, machine,  # type: ignore[arg-type]
-                                               progress, cancel),
+            ProcessCall(setup.run, (model, covariance, map_step, machine)),
             lambda result: self._analysed(result, setup, name),
             on_cancel=lambda: self.status.setText(f"EFAST {what} cancelled"),
         )

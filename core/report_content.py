@@ -680,7 +680,7 @@ def _compensation(results: _Results, folder: Path | None,
             ("method", "re-measured RMS X %", "Y %", "Z %", "range X %", "Y %", "Z %",
              "true grid RMS X %", "Y %", "Z %"), tuple(rows), "lrrrrrrrrr",
             caption="Verified compensation rates: the plan measured again on the compensated "
-                    f"machine (source: {verification_source})."))
+                    f"machine (source: {_source_name(verification_source)})."))
     else:
         blocks.append(Paragraph("No verification measurement of the compensated machine is "
                                 "recorded; the rates above are predictions.", "note"))
@@ -745,6 +745,11 @@ def _conformance(c: Conformance) -> Section:
 # --------------------------------------------------------------------------------------------
 # Formatting
 # --------------------------------------------------------------------------------------------
+
+
+def _source_name(source: str) -> str:
+    """Where verified rates came from, without a folder path: "project" or the file's name."""
+    return source if source in ("", "project") else f"the run's {Path(source).name}"
 
 
 def _f(value: Any, digits: int = 2) -> str:
