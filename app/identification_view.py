@@ -30,7 +30,6 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
     QWidget,
 )
-from volucal.core.display_units import DisplayUnits
 from volucal.core.errors import AXIS_ERROR_IDS, COMPONENTS, ERROR_INFO, SQUARENESS_IDS, error_label
 from volucal.core.machine import AXES
 
@@ -89,15 +88,15 @@ class IdentificationView(View):
                 plot.getAxis("bottom").setStyle(maxTickLevel=0)
                 self._plots[eid] = plot
 
-        self.squareness = QTableWidget(len(SQUARENESS_IDS), 4)
+        self.squareness = QTableWidget(len(SQUARENESS_IDS), 3)
         self.squareness.setObjectName("squarenessTable")
-        self.squareness.setHorizontalHeaderLabels(["squareness", "value", "U (k = 2)", "arcsec"])
+        self.squareness.setHorizontalHeaderLabels(["squareness", "value", "U (k = 2)"])
         self.squareness.verticalHeader().setVisible(False)
         self.squareness.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
         self.squareness.horizontalHeader().setSectionResizeMode(
             0, QHeaderView.ResizeMode.Stretch)
         square_box = QGroupBox("Squareness")
-        square_box.setMinimumWidth(360)
+        square_box.setMinimumWidth(290)
         square_layout = QVBoxLayout(square_box)
         square_layout.addWidget(self.squareness)
         self.square_note = QLabel()
@@ -116,7 +115,7 @@ class IdentificationView(View):
         self.lines.itemSelectionChanged.connect(self._show_line_residual)
         self.residual_plot = plots.make_plot("Residual", "target (mm)", "residual")
         self.residual_plot.setObjectName("residualPlot")
-        plots.add_legend(self.residual_plot.getPlotItem(), columns=6)
+        plots.add_legend(self.residual_plot.getPlotItem(), columns=5)
         self.residual_note = QLabel()
         self.residual_note.setWordWrap(True)
         residual_page = QSplitter(Qt.Orientation.Horizontal)
@@ -127,7 +126,7 @@ class IdentificationView(View):
         right_layout.addWidget(self.residual_note)
         right_layout.addWidget(self.residual_plot, 1)
         residual_page.addWidget(right)
-        residual_page.setSizes([440, 520])
+        residual_page.setSizes([400, 440])
         self.tabs = QTabWidget()
         self.tabs.addTab(self.report, "Identifiability")
         self.tabs.addTab(residual_page, "Residual per line")
@@ -253,7 +252,6 @@ class IdentificationView(View):
             plots.add_band(plot, x, value - K_BAND * std, value + K_BAND * std, colour, 50)
             plot.addItem(pg.PlotDataItem(x, value, pen=plots.pen(colour, 1.8,
                                                                  dashed=not identified)))
-        arcsec = DisplayUnits(angle="arcsec")
         for row, eid in enumerate(SQUARENESS_IDS):
             entry = record.parameters[eid]
             value = float(entry["value"][0])
@@ -262,8 +260,7 @@ class IdentificationView(View):
             if not identified:
                 self.not_identified.add(eid)
             cells = [error_label(eid) + ("" if identified else ", not identified"),
-                     self.units.text(value, "urad"), self.units.text(expanded, "urad"),
-                     arcsec.text(value, "urad", with_symbol=False)]
+                     self.units.text(value, "urad"), self.units.text(expanded, "urad")]
             for column, text in enumerate(cells):
                 cell = QTableWidgetItem(text)
                 cell.setToolTip(ERROR_INFO[eid].description)
@@ -275,7 +272,7 @@ class IdentificationView(View):
                 self.squareness.setItem(row, column, cell)
         self.squareness.resizeColumnsToContents()
         self.square_note.setText("Angle between the axes (ISO 230-1 signs); U is the expanded "
-                                 "uncertainty, k = 2.")
+                                 "uncertainty, k = 2. View ▸ Units shows them in arcsec.")
 
     def _fill_report(self, record: IdentificationRecord) -> None:
         ident = record.identifiability

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pyqtgraph as pg
 from numpy.typing import ArrayLike, NDArray
-from PySide6.QtCore import Qt
-from PySide6.QtGui import QAction, QColor
-from PySide6.QtWidgets import QFileDialog, QWidget
+from PySide6.QtCore import QPointF, Qt
+from PySide6.QtGui import QAction, QColor, QPainterPath, QPolygonF
+from PySide6.QtWidgets import QFileDialog, QGraphicsPathItem, QWidget
 from volucal.core.userror import UserError
 
 pg.setConfigOptions(antialias=True, background="w", foreground="k")
@@ -312,21 +312,26 @@ def _num(value: float) -> str:
 
 
 def add_band(plot: pg.PlotItem, x: ArrayLike, low: ArrayLike, high: ArrayLike,
-             colour: str = BAND, alpha: int = 60) -> pg.FillBetweenItem | None:
-    """A filled band between two curves (NaN stretches are left out)."""
+             colour: str = BAND, alpha: int = 60) -> QGraphicsPathItem | None:
+    """A filled band between two curves (NaN stretches are left out), drawn as one polygon:
+    a window with 18 banded curves draws them in one go."""
     x = np.asarray(x, dtype=float)
     low = np.asarray(low, dtype=float)
     high = np.asarray(high, dtype=float)
     keep = np.isfinite(x) & np.isfinite(low) & np.isfinite(high)
     if keep.sum() < 2:
         return None
-    lower = pg.PlotDataItem(x[keep], low[keep], pen=pen(colour, 0.8, alpha=120))
-    upper = pg.PlotDataItem(x[keep], high[keep], pen=pen(colour, 0.8, alpha=120))
-    fill = pg.FillBetweenItem(lower, upper, brush=brush(colour, alpha))
-    plot.addItem(lower)
-    plot.addItem(upper)
-    plot.addItem(fill)
-    return fill
+    xs, lows, highs = x[keep], low[keep], high[keep]
+    outline = QPolygonF([QPointF(a, b) for a, b in zip(xs, highs, strict=True)]
+                        + [QPointF(a, b) for a, b in zip(xs[::-1], lows[::-1], strict=True)])
+    path = QPainterPath()
+    path.addPolygon(outline)
+    path.closeSubpath()
+    item = QGraphicsPathItem(path)
+    item.setBrush(brush(colour, alpha))
+    item.setPen(pen(colour, 0.8, alpha=120))
+    plot.addItem(item)
+    return item
 
 
 def add_marker(plot: pg.PlotItem, x: float, label: str, colour: str = "#555555") -> None:

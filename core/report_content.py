@@ -202,6 +202,8 @@ def build_report(request: ReportRequest) -> ReportContent:
     certificate = Certificate.of_project(project)
     if request.certificate is not None:
         certificate = certificate.with_values(**request.certificate.to_json())
+    if not certificate.get("issued"):  # issued when written, unless the user dated it
+        certificate = certificate.with_values(issued=datetime.now(UTC).strftime("%Y-%m-%d"))
     tolerances = (request.tolerances if request.tolerances is not None
                   else Tolerances.of_project(project))
     comparison = None

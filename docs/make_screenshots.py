@@ -103,6 +103,12 @@ def take(out: Path, project: Path | None = None) -> list[Path]:
         while view.runner.busy:
             settle(app, 0.05)
 
+    from volucal.core.tolerances import Tolerances
+
+    # a customer's limits on axis X, to show pass and fail
+    limits = Tolerances({"X": {"A": 16.0, "E": 15.0, "R": 6.0, "B": 4.0, "M": 12.0}})
+    window.document.put_results("edit the tolerances",
+                                {("report", "tolerances"): limits.to_tree()})
     compensation = window.views["compensation"]
     window.show_view("compensation")
     compensation.set_format("linuxcnc")

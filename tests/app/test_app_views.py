@@ -389,8 +389,11 @@ def test_squareness_is_shown_as_numbers_with_units(qtbot, window):
     for row, eid in enumerate(("EC0Y", "EB0Z", "EA0Z")):
         value = float(record.parameters[eid]["value"][0])
         assert view.squareness.item(row, 1).text() == f"{value:.2f} µrad"
-        assert float(view.squareness.item(row, 3).text()) == pytest.approx(
-            value * 0.206265, abs=2e-3)
+    window.set_units("angle", "arcsec")
+    for row, eid in enumerate(("EC0Y", "EB0Z", "EA0Z")):
+        value = float(record.parameters[eid]["value"][0])
+        shown, unit = view.squareness.item(row, 1).text().split()
+        assert unit == "arcsec" and float(shown) == pytest.approx(value * 0.206265, abs=2e-3)
 
 
 def test_report_dialog_keeps_the_certificate_with_the_project(qtbot, window, wait_idle,
