@@ -14,9 +14,11 @@ from dataclasses import replace
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt
+from PySide6.QtGui import QPainterPath
 from PySide6.QtWidgets import (
     QComboBox,
     QDoubleSpinBox,
+    QGraphicsPathItem,
     QGroupBox,
     QHBoxLayout,
     QHeaderView,
@@ -77,6 +79,7 @@ class IdentificationView(View):
         self.curves = pg.GraphicsLayoutWidget()
         self.curves.setObjectName("errorCurves")
         self._plots: dict[str, pg.PlotItem] = {}
+        self._curve_items: dict[str, tuple[QGraphicsPathItem, pg.PlotDataItem, pg.TextItem]] = {}
         for row, axis in enumerate(AXES):
             for column, component in enumerate(COMPONENTS):
                 eid = f"E{component}{axis}"
@@ -87,6 +90,14 @@ class IdentificationView(View):
                 plot.getAxis("left").setStyle(maxTickLevel=0)
                 plot.getAxis("bottom").setStyle(maxTickLevel=0)
                 self._plots[eid] = plot
+                # kept and updated, never rebuilt: 18 plots redraw within a frame
+                band = QGraphicsPathItem()
+                curve = pg.PlotDataItem([], [])
+                note = pg.TextItem("not identified", color="#888888", anchor=(0, 0))
+                for item in (band, curve, note):
+                    plot.addItem(item)
+                note.hide()
+                self._curve_items[eid] = (band, curve, note)
 
         self.squareness = QTableWidget(len(SQUARENESS_IDS), 3)
         self.squareness.setObjectName("squarenessTable")
@@ -200,8 +211,11 @@ class IdentificationView(View):
             self._refresh_now()
 
     def _show(self, name: str) -> None:
-        for plot in self._plots.values():
-            plot.clear()
+        for eid, plot in self._plots.items():
+            band, curve, note = self._curve_items[eid]
+            band.setPath(QPainterPath())
+            curve.setData([], [])
+            note.hide()
             plot.setTitle(None)
         self.squareness.clearContents()
         self.square_note.clear()
@@ -237,21 +251,20 @@ class IdentificationView(View):
             unit = self.units.symbol(info.unit)
             plot.setTitle(f"{eid} {info.paper} ({unit})", size="8pt",
                           color="#000000" if identified else "#999999")
-            if not identified:
-                self.not_identified.add(eid)
-                # inside the plot, so that the column keeps its width
-                note = pg.TextItem("not identified", color="#888888", anchor=(0, 0))
-                plot.addItem(note)
-                note.setPos(float(entry["position_mm"][0]), float(np.max(self.units.convert(
-                    np.asarray(entry["value"], dtype=float) + K_BAND * np.asarray(
-                        entry["std"], dtype=float), info.unit))))
             x = np.asarray(entry["position_mm"], dtype=float)
             value = self.units.convert(entry["value"], info.unit)
             std = self.units.convert(entry["std"], info.unit)
             colour = plots.color(COMPONENTS.index(info.component)) if identified else "#aaaaaa"
-            plots.add_band(plot, x, value - K_BAND * std, value + K_BAND * std, colour, 50)
-            plot.addItem(pg.PlotDataItem(x, value, pen=plots.pen(colour, 1.8,
-                                                                 dashed=not identified)))
+            band, curve, note = self._curve_items[eid]
+            band.setPath(plots.band_path(x, value - K_BAND * std, value + K_BAND * std))
+            plots.style_band(band, colour, 50)
+            curve.setData(x, value)
+            curve.setPen(plots.pen(colour, 1.8, dashed=not identified))
+            if not identified:
+                self.not_identified.add(eid)
+                # inside the plot, so that the column keeps its width
+                note.setPos(float(x[0]), float(np.max(value + K_BAND * std)))
+                note.show()
         for row, eid in enumerate(SQUARENESS_IDS):
             entry = record.parameters[eid]
             value = float(entry["value"][0])

@@ -263,8 +263,9 @@ class MeasurementView(View):
             failed = [c for c in self.checks if not c.passed]
             axis = self.checks[0].axis
             undecided = [c for c in self.checks if c.decision != CONFORMS]
-            text = (f"<b style='color:{FAIL_COLOR if failed else PASS_COLOR}'>axis {axis}: "
-                    f"{'fails' if failed else 'passes'} its tolerances</b>")
+            line = self.line_box.currentText()
+            text = (f"<b style='color:{FAIL_COLOR if failed else PASS_COLOR}'>{line} "
+                    f"{'fails' if failed else 'passes'} the tolerances of axis {axis}</b>")
             if undecided and not failed:
                 text += (" — by ISO 14253-1 (with the uncertainty U) "
                          + ", ".join(f"{c.quantity}: {c.decision}" for c in undecided))

@@ -311,25 +311,37 @@ def _num(value: float) -> str:
     return "" if not math.isfinite(float(value)) else f"{float(value):.10g}"
 
 
-def add_band(plot: pg.PlotItem, x: ArrayLike, low: ArrayLike, high: ArrayLike,
-             colour: str = BAND, alpha: int = 60) -> QGraphicsPathItem | None:
-    """A filled band between two curves (NaN stretches are left out), drawn as one polygon:
-    a window with 18 banded curves draws them in one go."""
+def band_path(x: ArrayLike, low: ArrayLike, high: ArrayLike) -> QPainterPath:
+    """The outline of the band between ``low`` and ``high`` (NaN stretches are left out)."""
     x = np.asarray(x, dtype=float)
     low = np.asarray(low, dtype=float)
     high = np.asarray(high, dtype=float)
     keep = np.isfinite(x) & np.isfinite(low) & np.isfinite(high)
-    if keep.sum() < 2:
-        return None
-    xs, lows, highs = x[keep], low[keep], high[keep]
-    outline = QPolygonF([QPointF(a, b) for a, b in zip(xs, highs, strict=True)]
-                        + [QPointF(a, b) for a, b in zip(xs[::-1], lows[::-1], strict=True)])
     path = QPainterPath()
-    path.addPolygon(outline)
+    if keep.sum() < 2:
+        return path
+    xs, lows, highs = x[keep], low[keep], high[keep]
+    path.addPolygon(QPolygonF([QPointF(a, b) for a, b in zip(xs, highs, strict=True)]
+                              + [QPointF(a, b) for a, b in zip(xs[::-1], lows[::-1],
+                                                                 strict=True)]))
     path.closeSubpath()
-    item = QGraphicsPathItem(path)
+    return path
+
+
+def style_band(item: QGraphicsPathItem, colour: str = BAND, alpha: int = 60) -> None:
     item.setBrush(brush(colour, alpha))
     item.setPen(pen(colour, 0.8, alpha=120))
+
+
+def add_band(plot: pg.PlotItem, x: ArrayLike, low: ArrayLike, high: ArrayLike,
+             colour: str = BAND, alpha: int = 60) -> QGraphicsPathItem | None:
+    """A filled band between two curves (NaN stretches are left out), drawn as one polygon:
+    a window with 18 banded curves draws them in one go."""
+    path = band_path(x, low, high)
+    if path.isEmpty():
+        return None
+    item = QGraphicsPathItem(path)
+    style_band(item, colour, alpha)
     plot.addItem(item)
     return item
 
