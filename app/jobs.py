@@ -77,11 +77,18 @@ class Identified:
         return self.stored
 
 
+def without_system(identification: Identification) -> Identification:
+    """The identification without its linear system (the normal equations of every line: tens
+    of megabytes for a 49-line plan), which the workbench never reads once the records and
+    trees are made: what a worker process sends back to the window is then small."""
+    return replace(identification, system=None)  # type: ignore[arg-type]
+
+
 def run_identification(measurement: Measurement, options: IdentifyOptions,
                        progress: ProgressCallback | None = None,
                        cancel: CancelToken | None = None, name: str = "main") -> Identified:
     identification = identify(measurement, options, progress=progress, cancel=cancel)
-    return Identified(identification, options,
+    return Identified(without_system(identification), options,
                       IdentificationRecord.from_identification(name, identification, options),
                       identification_result_tree(identification, options))
 
@@ -105,7 +112,8 @@ class LoopRun:
                 "loop", loop.final, identify_options, loop_identifiability(loop)),
             ("loops", "main"): LoopRecord.from_loop("main", loop),
         }
-        return cls(loop, options, loop_result_trees(loop, identify_options), records)
+        light = replace(loop, base=without_system(loop.base), final=without_system(loop.final))
+        return cls(light, options, loop_result_trees(loop, identify_options), records)
 
     def trees(self) -> dict[tuple[str, str], dict[str, Any]]:
         """The project results of a loop: the identifications before and after, the report."""
@@ -162,7 +170,8 @@ def refit_with_effects(
     identifiability["redundant_lines"] = list(redundant_lines)
     identifiability["redundancy_from"] = "the 21-error fit before the loop"
     report(progress, 1.0, "refitted")
-    return Refit(result, cv, options, tuple(e.label for e in effects), tuple(rejected),
+    return Refit(without_system(result), cv, options, tuple(e.label for e in effects),
+                 tuple(rejected),
                  IdentificationRecord.from_identification(name, result, options, identifiability),
                  identification_result_tree(result, options, identifiability))
 

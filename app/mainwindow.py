@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import shiboken6
@@ -221,7 +222,7 @@ class MainWindow(QMainWindow):
         view = bar.addMenu("&View")
         for number, key in enumerate(VIEW_ORDER, start=1):
             view.addAction(self._action(f"&{number} {self.views[key].title}",
-                                        lambda k=key: self.show_view(k),
+                                        partial(self.show_view, key),
                                         QKeySequence(f"Ctrl+{number}")))
         view.addSeparator()
         units = view.addMenu("&Units")
@@ -233,7 +234,7 @@ class MainWindow(QMainWindow):
             group.setExclusive(True)
             units.addSection(title)
             for key, text in choices:
-                action = self._action(f"{text}", lambda k=kind, v=key: self.set_units(k, v))
+                action = self._action(text, partial(self.set_units, kind, key))
                 action.setCheckable(True)
                 action.setChecked(getattr(current, kind) == key)
                 group.addAction(action)
@@ -462,6 +463,7 @@ class MainWindow(QMainWindow):
                 return []
             folder = Path(chosen)
         view = self.stack.currentWidget()
+        assert view is not None
         try:
             written = plots.export_view(view, Path(folder), prefix=view.objectName())
         except (UserError, OSError) as exc:

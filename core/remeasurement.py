@@ -110,9 +110,9 @@ def same_place(a: Line, b: Line) -> bool:
         return False
     if float(np.dot(sa.direction, sb.direction)) < SAME_DIRECTION:
         return False
-    if (sa.sensitive is None) != (sb.sensitive is None):
-        return False
-    return sa.sensitive is None or float(np.dot(sa.sensitive, sb.sensitive)) >= SAME_DIRECTION
+    if sa.sensitive is None or sb.sensitive is None:
+        return sa.sensitive is None and sb.sensitive is None
+    return float(np.dot(sa.sensitive, sb.sensitive)) >= SAME_DIRECTION
 
 
 def match(before: Sequence[Line], after: Sequence[Line]) -> list[tuple[Line, Line]]:
