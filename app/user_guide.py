@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from PySide6.QtCore import QUrl
-from PySide6.QtGui import QDesktopServices, QTextDocument
+from PySide6.QtCore import Qt, QUrl
+from PySide6.QtGui import QDesktopServices, QImage, QTextDocument
 from PySide6.QtWidgets import (
     QDialog,
     QHBoxLayout,
@@ -50,6 +50,25 @@ def docs_folder() -> Path:
     return folder
 
 
+#: Pictures wider than this (pixels) are shown scaled down to it.
+PICTURE_WIDTH = 760
+
+
+class _GuideText(QTextBrowser):
+    """The page; its pictures (screenshots of the whole window) are scaled to fit."""
+
+    def loadResource(self, kind: int, url: QUrl) -> object:
+        if kind == int(QTextDocument.ResourceType.ImageResource.value):
+            image = QImage(url.toLocalFile() if url.isLocalFile() else
+                           str(Path(self.searchPaths()[0]) / url.path()))
+            if not image.isNull():
+                if image.width() > PICTURE_WIDTH:
+                    image = image.scaledToWidth(PICTURE_WIDTH,
+                                                Qt.TransformationMode.SmoothTransformation)
+                return image
+        return super().loadResource(kind, url)
+
+
 class UserGuide(QDialog):
     """A window with the list of pages and the page shown."""
 
@@ -65,7 +84,7 @@ class UserGuide(QDialog):
         titles = dict(PAGES)
         self.pages.addItems([titles[name] for name in self.files])
         self.pages.setMaximumWidth(240)
-        self.browser = QTextBrowser()
+        self.browser = _GuideText()
         self.browser.setObjectName("guideText")
         self.browser.setOpenLinks(False)
         self.browser.anchorClicked.connect(self._follow)
