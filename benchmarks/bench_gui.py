@@ -43,7 +43,7 @@ from volucal.core import plans  # noqa: E402
 from volucal.core.identify import IdentifyOptions  # noqa: E402
 from volucal.core.io.plan import import_plan, load_plan  # noqa: E402
 from volucal.core.project import Project  # noqa: E402
-from volucal.core.residuals import LoopOptions, close_loop  # noqa: E402
+from volucal.core.residuals import LoopOptions  # noqa: E402
 from volucal.core.resources import demo_plan  # noqa: E402
 from volucal.core.simulate import LaserSetup, demo_machine, write_session  # noqa: E402
 
@@ -89,9 +89,43 @@ class Ticks:
     def __exit__(self, *exc: object) -> None:
         self.timer.stop()
 
-    def longest_gap_ms(self) -> float:
-        gaps = [b - a for a, b in zip(self.times, self.times[1:], strict=False)]
+    def longest_gap_ms(self, margin_s: float = 0.0) -> float:
+        """The longest gap; with ``margin_s``, only gaps that end at least that long after the
+        first tick and before the last (the computation itself, not the redraws that start and
+        end it)."""
+        if not self.times:
+            return float("nan")
+        first, last = self.times[0] + margin_s, self.times[-1] - margin_s
+        gaps = [b - a for a, b in zip(self.times, self.times[1:], strict=False)
+                if first <= b <= last]
         return 1000 * max(gaps, default=float("nan"))
+
+
+CORE_CALL = """
+import dataclasses, sys, time
+from volucal.app.jobs import budget_of
+from volucal.app.records import identify_options
+from volucal.core.identify import identify
+from volucal.core.project import Project
+from volucal.core.residuals import LoopOptions, close_loop
+project = Project.open(sys.argv[2])
+measurement = project.measurement()
+options = dataclasses.replace(identify_options({"spacing_mm": 50.0}), budget=budget_of(project))
+t0 = time.perf_counter()
+if sys.argv[1] == "identify":
+    identify(measurement, options)
+else:
+    close_loop(measurement, LoopOptions(identify=options))
+print(time.perf_counter() - t0)
+"""
+
+
+def core_call_s(kind: str, project: Path) -> float:
+    """The core call alone, in a fresh interpreter (as the command line runs it; loading and
+    imports left out)."""
+    out = subprocess.run([sys.executable, "-c", CORE_CALL, kind, str(project)], check=True,
+                         capture_output=True, text=True).stdout
+    return float(out.strip().splitlines()[-1])
 
 
 def demo_project(folder: Path, given: Path | None) -> Path:
@@ -117,9 +151,6 @@ def smoke_start_s(project: Path) -> float:
 
 
 def demo_figures(app, folder: Path, project: Path, skip_loop: bool) -> None:  # type: ignore[no-untyped-def]
-    from volucal.app.records import identify_options
-    from volucal.core.identify import identify
-
     copy = folder / "demo-bench.h5"
     shutil.copyfile(project, copy)
     runs = [smoke_start_s(copy) for _ in range(3)]
@@ -135,13 +166,7 @@ def demo_figures(app, folder: Path, project: Path, skip_loop: bool) -> None:  # 
     print(f"window shown with the demo project (in a running application): "
           f"{time.perf_counter() - t0:.2f} s")
 
-    document = window.document
-    measurement = document.measurement()
-    budget = jobs.budget_of(document.project)
-    options = dataclasses.replace(identify_options({"spacing_mm": 50.0}), budget=budget)
-    t0 = time.perf_counter()
-    identify(measurement, options)
-    core_identify = time.perf_counter() - t0
+    core_identify = core_call_s("identify", copy)
     cli_copy = folder / "demo-cli.h5"
     shutil.copyfile(project, cli_copy)
     volucal = Path(sys.executable).with_name("volucal")
@@ -159,24 +184,22 @@ def demo_figures(app, folder: Path, project: Path, skip_loop: bool) -> None:  # 
     print(f"identify, 49 demo lines: `volucal identify` {cli_identify:.1f} s (core call alone "
           f"{core_identify:.1f} s), from the window (F5 to the view updated) {gui_identify:.1f} s "
           f"= {gui_identify / cli_identify:.2f}× the command ({gui_identify / core_identify:.2f}× "
-          f"the core call; target ≤ 1.5×); longest GUI freeze {ticks.longest_gap_ms():.0f} ms "
-          f"(target < 100 ms)")
+          f"the core call; target ≤ 1.5×); longest GUI freeze {ticks.longest_gap_ms():.0f} ms, "
+          f"{ticks.longest_gap_ms(0.5):.0f} ms while it computes (target < 100 ms)")
 
     if not skip_loop:
         loop_view = window.views["loop"]
-        loop_options = loop_view.options()
-        t0 = time.perf_counter()
-        close_loop(measurement, loop_options)
-        core_loop = time.perf_counter() - t0
+        core_loop = core_call_s("loop", copy)
         with Ticks() as ticks:
             t0 = time.perf_counter()
             window.close_loop()
             wait(app, lambda: not loop_view.runner.busy, timeout_s=3600.0)
             app.processEvents()
             gui_loop = time.perf_counter() - t0
-        print(f"close the loop, 49 demo lines: core {core_loop:.1f} s, from the window (F6 to "
-              f"the views updated) {gui_loop:.1f} s = {gui_loop / core_loop:.2f}× (target "
-              f"≤ 1.5×); longest GUI freeze {ticks.longest_gap_ms():.0f} ms (target < 100 ms)")
+        print(f"close the loop, 49 demo lines: core call {core_loop:.1f} s, from the window (F6 "
+              f"to the views updated) {gui_loop:.1f} s = {gui_loop / core_loop:.2f}× (target "
+              f"≤ 1.5×); longest GUI freeze {ticks.longest_gap_ms():.0f} ms, "
+              f"{ticks.longest_gap_ms(0.5):.0f} ms while it computes (target < 100 ms)")
     window.document.undo_stack.setClean()
     window.close()
     tasks.wait_for_all()
