@@ -82,6 +82,8 @@ class CompensationView(View):
             self.format_box.setItemData(self.format_box.count() - 1, text,
                                         Qt.ItemDataRole.ToolTipRole)
         self.format_box.currentIndexChanged.connect(self._format_changed)
+        for box in (self.identification_box, self.source_box):
+            box.activated.connect(lambda _i: self.clear_preview())
         self.format_help = QLabel()
         self.format_help.setWordWrap(True)
         self.format_help.setMinimumWidth(200)
@@ -166,7 +168,7 @@ class CompensationView(View):
         self.table.verticalHeader().setVisible(False)
         self.table.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
         self.table_plot = plots.make_plot("Axis table", "position (mm)", "correction (µm)")
-        self.table_plot.addLegend(offset=(10, 10))
+        plots.add_legend(self.table_plot.getPlotItem())
         tables_page = QWidget()
         tables_layout = QVBoxLayout(tables_page)
         axis_row = QHBoxLayout()
@@ -201,7 +203,7 @@ class CompensationView(View):
         self.rates.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
         self.rms_plot = plots.make_plot("Predicted RMS error per direction", None, "RMS (µm)")
         self.rms_plot.setObjectName("predictedPlot")
-        self.rms_plot.addLegend(offset=(-10, 10))
+        plots.add_legend(self.rms_plot.getPlotItem(), columns=3)
         predicted_page = QSplitter(Qt.Orientation.Vertical)
         predicted_page.addWidget(self.rates)
         predicted_page.addWidget(self.rms_plot)
@@ -228,6 +230,7 @@ class CompensationView(View):
     # ---- options -------------------------------------------------------------------------------
 
     def _format_changed(self) -> None:
+        self.clear_preview()
         name = self.format_box.currentData()
         self.format_help.setText(FORMAT_HELP.get(name, ""))
         self.linuxcnc_type.setEnabled(name == "linuxcnc")
@@ -386,6 +389,11 @@ class CompensationView(View):
 
     # ---- showing -------------------------------------------------------------------------------
 
+    def set_document(self, document: ProjectDocument) -> None:
+        self.clear_preview()
+        self.status.clear()
+        super().set_document(document)
+
     def refresh(self) -> None:
         current = self.identification_box.currentText()
         names = self.document.results("identifications")
@@ -404,6 +412,9 @@ class CompensationView(View):
         self.export_button.setEnabled(bool(names) and not self.runner.busy)
         if not names:
             self.status.setText("identify the errors first: there is nothing to compensate yet")
+        if self.preview is not None:  # shown again in the current units
+            self._show_table()
+            self._show_rates()
 
     def select(self, name: str | None) -> None:
         if self._stale:
@@ -417,6 +428,20 @@ class CompensationView(View):
             folder = str(tree.get("out_dir", ""))
             self.status.setText(f"last {name} export: {folder or 'not written'} — press "
                                 "Preview to see it")
+
+    def clear_preview(self) -> None:
+        """Forget the shown preview: it was of other options, identification or project."""
+        if self.preview is None:
+            return
+        self.preview = None
+        for widget in (self.files, self.file_text, self.notes):
+            widget.clear()
+        self.table.setRowCount(0)
+        self.table_plot.clear()
+        self.table_plot.getPlotItem().setTitle("Axis table", size="10pt")
+        self.rates.setRowCount(0)
+        self.rms_plot.clear()
+        self.status.setText("press Preview to see the tables of these options")
 
     def _show_preview(self) -> None:
         preview = self.preview
@@ -448,12 +473,20 @@ class CompensationView(View):
         table = self.preview.result.tables.axis.get(axis)
         if table is None:
             return
-        columns = (table.position_mm, table.correction_forward_um, table.correction_backward_um,
-                   table.error_forward_um, table.error_backward_um)
+        units = self.units
+        symbol = units.symbol("um")
+        self.table.setHorizontalHeaderLabels(
+            ["position mm", f"correction ↑ {symbol}", f"correction ↓ {symbol}",
+             f"error ↑ {symbol}", f"error ↓ {symbol}"])
+        stored_um = (table.correction_forward_um, table.correction_backward_um,
+                     table.error_forward_um, table.error_backward_um)
+        columns = (table.position_mm, *(units.convert(values, "um") for values in stored_um))
         self.table.setRowCount(len(table.position_mm))
         for row in range(len(table.position_mm)):
-            for column, values in enumerate(columns):
-                item = QTableWidgetItem(f"{values[row]:.4f}")
+            for column in range(len(columns)):
+                text = (f"{table.position_mm[row]:g}" if column == 0 else
+                        units.text(float(stored_um[column - 1][row]), "um", False, 1))
+                item = QTableWidgetItem(text)
                 item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
                 if table.beyond_range[row]:
                     item.setToolTip("beyond the measured range: the end value is held")
@@ -461,9 +494,10 @@ class CompensationView(View):
                 self.table.setItem(row, column, item)
         item = self.table_plot.getPlotItem()
         item.setTitle(f"{axis} axis table ({self.preview.result.format})", size="10pt")
-        item.addItem(pg.PlotDataItem(table.position_mm, table.correction_forward_um,
+        item.setLabel("left", f"correction ({symbol})")
+        item.addItem(pg.PlotDataItem(table.position_mm, columns[1],
                                      pen=plots.pen(plots.FORWARD, 2), name="correction ↑"))
-        item.addItem(pg.PlotDataItem(table.position_mm, table.correction_backward_um,
+        item.addItem(pg.PlotDataItem(table.position_mm, columns[2],
                                      pen=plots.pen(plots.BACKWARD, 1.5, dashed=True),
                                      name="correction ↓"))
         low, high = table.measured_range_mm
@@ -489,19 +523,19 @@ class CompensationView(View):
         item = self.rms_plot.getPlotItem()
         item.clear()
         first = next(iter(methods.values()))
-        before = [first.rates.rms_before_um[a] for a in AXES]
+        before = [self.units.value(first.rates.rms_before_um[a], "um") for a in AXES]
+        item.setLabel("left", f"RMS ({self.units.symbol('um')})")
         x = np.arange(3, dtype=float)
         width = 0.8 / (len(methods) + 1)
         item.addItem(pg.BarGraphItem(x=x - 0.4 + width / 2, height=before, width=width,
                                      brush=plots.brush("#555555", 200), name="uncompensated"))
         for k, (name, method) in enumerate(methods.items(), start=1):
-            after = [method.rates.rms_after_um[a] for a in AXES]
+            after = [self.units.value(method.rates.rms_after_um[a], "um") for a in AXES]
             item.addItem(pg.BarGraphItem(x=x - 0.4 + width * (k + 0.5), height=after,
                                          width=width, brush=plots.brush(plots.color(k - 1), 200),
                                          name=name))
         plots.category_ticks(item.getAxis("bottom"), [f"E{a}" for a in AXES])
-        # headroom above the bars for the legend
-        item.setYRange(0.0, 1.6 * max(max(before), 1e-6), padding=0)
+        item.setYRange(0.0, 1.08 * max(max(before), 1e-6), padding=0)
 
 
 def _large_as_value(call: Any) -> Any:

@@ -111,6 +111,12 @@ class ProjectDocument(QObject):
     def tree(self, kind: str, name: str) -> dict[str, Any]:
         return self.project.result(kind, name)
 
+    def result_token(self, kind: str, name: str) -> int | None:
+        """Changes whenever result ``name`` is stored again (an identification run anew):
+        views that derived something from a result compare tokens to know it is stale."""
+        stored = self.project._results.get(kind, {}).get(name)
+        return None if stored is None else id(stored)
+
     def identification(self, name: str) -> IdentificationRecord:
         live = self.live.get(("identifications", name))
         if live is not None:
@@ -239,14 +245,6 @@ class ProjectDocument(QObject):
         self.pathChanged.emit(saved)
         log.info("saved %s", saved)
         return saved
-
-
-@dataclass(frozen=True, eq=False)
-class Live:
-    """A live result: the core object and the record the views read."""
-
-    value: Any
-    record: Any
 
 
 def _capture_arrays(capture: Any) -> dict[str, Any]:

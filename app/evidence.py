@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from volucal.core.display_units import DisplayUnits
 from volucal.core.machine import AXES, AXIS_INDEX, Machine
 
 from .records import ReadingTable
@@ -45,6 +46,9 @@ class Series:
 
 @dataclass(frozen=True)
 class Evidence:
+    """A plot's content. ``y`` values are in ``y_unit`` ("um", "urad", or "" for a pure
+    number); :meth:`y_axis` names the axis in the units it is shown in."""
+
     title: str
     x_label: str
     y_label: str
@@ -53,6 +57,13 @@ class Evidence:
     note: str = ""
     log_x: bool = False
     extra: Mapping[str, Any] = field(default_factory=dict)
+    y_unit: str = ""
+
+    def y_axis(self, units: DisplayUnits) -> str:
+        return f"{self.y_label} ({units.symbol(self.y_unit)})" if self.y_unit else self.y_label
+
+    def y_shown(self, y: FloatArray, units: DisplayUnits) -> FloatArray:
+        return units.convert(y, self.y_unit) if self.y_unit else np.asarray(y, dtype=float)
 
 
 def _moving_lines(readings: ReadingTable, axis: str, reading_along: bool = False) -> list[int]:
@@ -92,7 +103,7 @@ def reversal_difference(readings: ReadingTable, axis: str) -> Evidence:
                                  np.asarray(ys)[order]))
     return Evidence(
         f"Reversal along {axis}: forward − backward mean residual",
-        f"{axis} position (mm)", "forward − backward (µm)", tuple(series),
+        f"{axis} position (mm)", "forward − backward", tuple(series), y_unit="um",
         note=f"lines reading along {axis}; a reversal the 21-error model lacks shows as a "
              "constant step, scaled by how much of the reading is along the axis",
     )
@@ -166,7 +177,7 @@ def residual_vs_time(readings: ReadingTable, temperature: bool = False) -> Evide
     what = "material temperature (°C)" if temperature else "time since the first reading (h)"
     return Evidence(
         "Residual against " + ("material temperature" if temperature else "time"),
-        what, "residual (µm)", tuple(series),
+        what, "residual", tuple(series), y_unit="um",
         note="" if series else "no material temperature was logged",
     )
 
@@ -189,10 +200,10 @@ def departure_along(readings: ReadingTable, axis: str, line_names: tuple[str, ..
         ys = np.array([residual[targets == t].mean() for t in unique])
         order = np.argsort(xs)
         series.append(Series(readings.line_names[index], xs[order], ys[order]))
-    unit = "µrad" if series and all(readings.group[i] == "angular" for i in lines) else "µm"
+    unit = "urad" if series and all(readings.group[i] == "angular" for i in lines) else "um"
     return Evidence(
         f"Departure from the rigid-body model along {axis}",
-        f"{axis} position (mm)", f"mean residual ({unit})", tuple(series),
+        f"{axis} position (mm)", "mean residual", tuple(series), y_unit=unit,
         note="structure shared by parallel lines is a rigid-body error; what differs between "
              "them is not",
     )
@@ -205,15 +216,15 @@ def line_residual(readings: ReadingTable, name: str) -> Evidence:
                         note=f"line {name!r} is not in this identification")
     index = readings.line_names.index(name)
     mask = readings.line_mask(index)
-    unit = "µrad" if readings.group[index] == "angular" else "µm"
+    unit = "urad" if readings.group[index] == "angular" else "um"
     series = []
     for run in np.unique(readings.run[mask]):
         at = mask & (readings.run == run)
         order = np.argsort(readings.target_mm[at])
         series.append(Series(f"run {run + 1}", readings.target_mm[at][order],
                              readings.residual[at][order]))
-    return Evidence(f"Residual of line {name}", "target (mm)", f"residual ({unit})",
-                    tuple(series))
+    return Evidence(f"Residual of line {name}", "target (mm)", "residual", tuple(series),
+                    y_unit=unit)
 
 
 def for_effect(readings: ReadingTable, effect: Mapping[str, Any], machine: Machine) -> Evidence:

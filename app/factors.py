@@ -231,7 +231,7 @@ class SensitivityRecord:
 
     ``indices[output][kind][id]`` with kind S1, ST, S1_std, ST_std (workspace values for maps).
     ``result`` holds the arrays (None for projects that kept only the report, as
-    ``volucal calibrate`` writes them); ``setup`` the factor table it was run with.
+    older ``volucal calibrate`` wrote them); ``setup`` the factor table it was run with.
     """
 
     name: str

@@ -14,10 +14,14 @@ from dataclasses import replace
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt
+from PySide6.QtGui import QPainterPath
 from PySide6.QtWidgets import (
     QComboBox,
     QDoubleSpinBox,
+    QGraphicsPathItem,
+    QGroupBox,
     QHBoxLayout,
+    QHeaderView,
     QLabel,
     QPushButton,
     QSplitter,
@@ -32,8 +36,9 @@ from volucal.core.errors import AXIS_ERROR_IDS, COMPONENTS, ERROR_INFO, SQUARENE
 from volucal.core.machine import AXES
 
 from . import evidence, jobs, plots
-from .document import Live, ProjectDocument
-from .records import IdentificationRecord, identify_options
+from .document import ProjectDocument
+from .engine import ProcessCall
+from .records import IdentificationRecord, Live, identify_options
 from .settings import Preferences
 from .view_base import View
 
@@ -74,17 +79,40 @@ class IdentificationView(View):
         self.curves = pg.GraphicsLayoutWidget()
         self.curves.setObjectName("errorCurves")
         self._plots: dict[str, pg.PlotItem] = {}
+        self._curve_items: dict[str, tuple[QGraphicsPathItem, pg.PlotDataItem, pg.TextItem]] = {}
         for row, axis in enumerate(AXES):
             for column, component in enumerate(COMPONENTS):
                 eid = f"E{component}{axis}"
                 plot = self.curves.addPlot(row=row, col=column)
                 plots.style(plot)
-                plot.setMenuEnabled(False)
-                plot.getAxis("left").setWidth(38)
+                plot.getAxis("left").setWidth(40)
+                # few, readable ticks in a small plot
+                plot.getAxis("left").setStyle(maxTickLevel=0)
+                plot.getAxis("bottom").setStyle(maxTickLevel=0)
                 self._plots[eid] = plot
-        self._square = self.curves.addPlot(row=len(AXES), col=0, colspan=len(COMPONENTS))
-        plots.style(self._square, "squareness (µrad) ± 2u")
-        self._square.setMaximumHeight(130)
+                # kept and updated, never rebuilt: 18 plots redraw within a frame
+                band = QGraphicsPathItem()
+                curve = pg.PlotDataItem([], [])
+                note = pg.TextItem("not identified", color="#888888", anchor=(0, 0))
+                for item in (band, curve, note):
+                    plot.addItem(item)
+                note.hide()
+                self._curve_items[eid] = (band, curve, note)
+
+        self.squareness = QTableWidget(len(SQUARENESS_IDS), 3)
+        self.squareness.setObjectName("squarenessTable")
+        self.squareness.setHorizontalHeaderLabels(["squareness", "value", "U (k = 2)"])
+        self.squareness.verticalHeader().setVisible(False)
+        self.squareness.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
+        self.squareness.horizontalHeader().setSectionResizeMode(
+            0, QHeaderView.ResizeMode.Stretch)
+        square_box = QGroupBox("Squareness")
+        square_box.setMinimumWidth(290)
+        square_layout = QVBoxLayout(square_box)
+        square_layout.addWidget(self.squareness)
+        self.square_note = QLabel()
+        self.square_note.setWordWrap(True)
+        square_layout.addWidget(self.square_note)
 
         self.report = QTextBrowser()
         self.report.setObjectName("identifiabilityReport")
@@ -97,6 +125,8 @@ class IdentificationView(View):
         self.lines.setSortingEnabled(True)
         self.lines.itemSelectionChanged.connect(self._show_line_residual)
         self.residual_plot = plots.make_plot("Residual", "target (mm)", "residual")
+        self.residual_plot.setObjectName("residualPlot")
+        plots.add_legend(self.residual_plot.getPlotItem(), columns=5)
         self.residual_note = QLabel()
         self.residual_note.setWordWrap(True)
         residual_page = QSplitter(Qt.Orientation.Horizontal)
@@ -107,13 +137,19 @@ class IdentificationView(View):
         right_layout.addWidget(self.residual_note)
         right_layout.addWidget(self.residual_plot, 1)
         residual_page.addWidget(right)
+        residual_page.setSizes([400, 440])
         self.tabs = QTabWidget()
         self.tabs.addTab(self.report, "Identifiability")
         self.tabs.addTab(residual_page, "Residual per line")
 
+        lower = QSplitter(Qt.Orientation.Horizontal)
+        lower.addWidget(self.tabs)
+        lower.addWidget(square_box)
+        lower.setStretchFactor(0, 3)
+        lower.setStretchFactor(1, 1)
         splitter = QSplitter(Qt.Orientation.Vertical)
         splitter.addWidget(self.curves)
-        splitter.addWidget(self.tabs)
+        splitter.addWidget(lower)
         splitter.setStretchFactor(0, 3)
         splitter.setStretchFactor(1, 2)
         layout = QVBoxLayout(self)
@@ -121,6 +157,7 @@ class IdentificationView(View):
         layout.addWidget(splitter, 1)
         self.record: IdentificationRecord | None = None
         self.not_identified: set[str] = set()
+        self._show_next: str | None = None
 
     # ---- running ---------------------------------------------------------------------------
 
@@ -134,18 +171,16 @@ class IdentificationView(View):
         self.summary.setText("identifying…")
         self.run_task(
             "identification",
-            lambda progress, cancel: jobs.run_identification(measurement, options, progress,
-                                                             cancel),
+            ProcessCall(jobs.run_identification, (measurement, options)),
             self._identified,
             on_cancel=lambda: self.summary.setText("identification cancelled"),
         )
 
     def _identified(self, result: jobs.Identified) -> None:
-        record = IdentificationRecord.from_identification("main", result.identification,
-                                                          result.options)
         key = ("identifications", "main")
+        self._show_next = "main"  # the refresh the edit causes draws it, once
         self.document.put_results("identify the 21 errors", {key: result.tree()},
-                                  {key: Live(result.identification, record)})
+                                  {key: Live(result.identification, result.record)})
         self.select("main")
 
     def _busy(self, busy: bool) -> None:
@@ -153,33 +188,42 @@ class IdentificationView(View):
 
     # ---- showing ---------------------------------------------------------------------------
 
-    def refresh(self) -> None:
-        current = self.name_box.currentText()
+    def refresh(self, wanted: str | None = None) -> None:
+        current = wanted or self._show_next or self.name_box.currentText()
+        self._show_next = None
         names = self.document.results("identifications")
-        self.name_box.blockSignals(True)
+        self.name_box.blockSignals(True)  # drawn once, below
         self.name_box.clear()
         self.name_box.addItems(names)
-        self.name_box.blockSignals(False)
-        self.run_button.setEnabled(bool(self.document.line_names()) and not self.runner.busy)
         if names:
             self.name_box.setCurrentText(current if current in names else
                                          ("loop" if "loop" in names else names[0]))
+        self.name_box.blockSignals(False)
+        self.run_button.setEnabled(bool(self.document.line_names()) and not self.runner.busy)
         self._show(self.name_box.currentText())
 
     def select(self, name: str | None) -> None:
-        if self._stale:
-            self._refresh_now()
         if name and name in self.document.results("identifications"):
-            self.name_box.setCurrentText(name)
-            self._show(name)
+            if self._stale or name != self.name_box.currentText():
+                self._stale = False
+                self.refresh(name)
+        elif self._stale:
+            self._refresh_now()
 
     def _show(self, name: str) -> None:
-        for plot in self._plots.values():
-            plot.clear()
-        self._square.clear()
+        for eid, plot in self._plots.items():
+            band, curve, note = self._curve_items[eid]
+            band.setPath(QPainterPath())
+            curve.setData([], [])
+            note.hide()
+            plot.setTitle(None)
+        self.squareness.clearContents()
+        self.square_note.clear()
         self.not_identified = set()
         self.lines.setRowCount(0)
         self.residual_plot.clear()
+        plots.style(self.residual_plot.getPlotItem(), "Residual", "target (mm)", "residual")
+        self.residual_note.clear()
         if not name or name not in self.document.results("identifications"):
             self.record = None
             self.summary.setText("no identification yet: press Identify" if
@@ -193,10 +237,10 @@ class IdentificationView(View):
         self._fill_lines(record)
         rank = record.identifiability
         um, urad = record.residual_rms()
-        rms = "" if math.isnan(um) else f", residual RMS {um:.3f} µm"
-        rms += "" if math.isnan(urad) else f" / {urad:.3f} µrad"
+        rms = "" if math.isnan(um) else f", residual RMS {self.units.text(um, 'um')}"
+        rms += "" if math.isnan(urad) else f" / {self.units.text(urad, 'urad')}"
         self.summary.setText(f"rank {rank.get('rank')} of {rank.get('unknowns')} unknowns, "
-                             f"σ₀ {record.sigma_scale:.3g}{rms}")
+                             f"σ₀ {record.sigma_scale:.3f}{rms}")
 
     def _draw_curves(self, record: IdentificationRecord) -> None:
         for eid in AXIS_ERROR_IDS:
@@ -204,40 +248,44 @@ class IdentificationView(View):
             entry = record.parameters[eid]
             identified = record.identified(eid)
             info = ERROR_INFO[eid]
-            unit = plots.unit_label(info.unit)
-            plot.setTitle(f"{eid} {info.paper} {unit}", size="8pt",
+            unit = self.units.symbol(info.unit)
+            plot.setTitle(f"{eid} {info.paper} ({unit})", size="8pt",
                           color="#000000" if identified else "#999999")
+            x = np.asarray(entry["position_mm"], dtype=float)
+            value = self.units.convert(entry["value"], info.unit)
+            std = self.units.convert(entry["std"], info.unit)
+            colour = plots.color(COMPONENTS.index(info.component)) if identified else "#aaaaaa"
+            band, curve, note = self._curve_items[eid]
+            band.setPath(plots.band_path(x, value - K_BAND * std, value + K_BAND * std))
+            plots.style_band(band, colour, 50)
+            curve.setData(x, value)
+            curve.setPen(plots.pen(colour, 1.8, dashed=not identified))
             if not identified:
                 self.not_identified.add(eid)
                 # inside the plot, so that the column keeps its width
-                note = pg.TextItem("not identified", color="#888888", anchor=(0, 0))
-                plot.addItem(note)
-                note.setPos(float(entry["position_mm"][0]), float(np.max(
-                    np.asarray(entry["value"], dtype=float) + K_BAND * np.asarray(
-                        entry["std"], dtype=float))))
-            x = np.asarray(entry["position_mm"], dtype=float)
-            value = np.asarray(entry["value"], dtype=float)
-            std = np.asarray(entry["std"], dtype=float)
-            colour = plots.color(COMPONENTS.index(info.component)) if identified else "#aaaaaa"
-            plots.add_band(plot, x, value - K_BAND * std, value + K_BAND * std, colour, 50)
-            plot.addItem(pg.PlotDataItem(x, value, pen=plots.pen(colour, 1.8,
-                                                                 dashed=not identified)))
-        values, errors, labels, brushes = [], [], [], []
-        for eid in SQUARENESS_IDS:
+                note.setPos(float(x[0]), float(np.max(value + K_BAND * std)))
+                note.show()
+        for row, eid in enumerate(SQUARENESS_IDS):
             entry = record.parameters[eid]
-            values.append(float(entry["value"][0]))
-            errors.append(K_BAND * float(entry["std"][0]))
+            value = float(entry["value"][0])
+            expanded = K_BAND * float(entry["std"][0])
             identified = record.identified(eid)
-            labels.append(error_label(eid) + ("" if identified else ", not identified"))
-            brushes.append(plots.brush(plots.color(4) if identified else "#bbbbbb", 160))
             if not identified:
                 self.not_identified.add(eid)
-        x = np.arange(len(values), dtype=float)
-        bars = pg.BarGraphItem(x=x, height=values, width=0.5, brushes=brushes)
-        self._square.addItem(bars)
-        self._square.addItem(pg.ErrorBarItem(x=x, y=np.asarray(values), height=2 * np.asarray(
-            errors), beam=0.15, pen=plots.pen("#000000", 1.2)))
-        plots.category_ticks(self._square.getAxis("bottom"), labels)
+            cells = [error_label(eid) + ("" if identified else ", not identified"),
+                     self.units.text(value, "urad"), self.units.text(expanded, "urad")]
+            for column, text in enumerate(cells):
+                cell = QTableWidgetItem(text)
+                cell.setToolTip(ERROR_INFO[eid].description)
+                if column:
+                    cell.setTextAlignment(Qt.AlignmentFlag.AlignRight
+                                          | Qt.AlignmentFlag.AlignVCenter)
+                if not identified:
+                    cell.setForeground(Qt.GlobalColor.gray)
+                self.squareness.setItem(row, column, cell)
+        self.squareness.resizeColumnsToContents()
+        self.square_note.setText("Angle between the axes (ISO 230-1 signs); U is the expanded "
+                                 "uncertainty, k = 2. View ▸ Units shows them in arcsec.")
 
     def _fill_report(self, record: IdentificationRecord) -> None:
         ident = record.identifiability
@@ -251,11 +299,26 @@ class IdentificationView(View):
             parts.append("</ul>")
         else:
             parts.append("<p>Every error is identified by this plan.</p>")
-        redundant = ident.get("redundant_lines", []) or []
-        if redundant:
-            parts.append(f"<p><b>Redundant lines</b> (the plan stays identifiable without each "
-                         f"of them; leave-one-line-out cross-validation uses them): "
-                         f"{', '.join(redundant)}</p>")
+        redundant = list(ident.get("redundant_lines", []) or [])
+        source = ident.get("redundancy_from")
+        names = self.document.results("identifications")
+        if not redundant and source is None and record.effects and "main" in names and \
+                record.name != "main":
+            # a loop refit stored before the trees carried the plan's redundancy: the plan's is
+            # that of the 21-error fit
+            redundant = list(self.document.identification("main").identifiability.get(
+                "redundant_lines", []) or [])
+            source = "the 21-error fit 'main'"
+        lines = len(self.document.line_names())
+        origin = f" (tested on {source})" if source else ""
+        if redundant and len(redundant) == lines:
+            parts.append(f"<p><b>Every one of the {lines} lines is redundant</b>{origin}: the "
+                         "plan stays identifiable without any one of them, so cross-validation "
+                         "leaves one line out at a time.</p>")
+        elif redundant:
+            parts.append(f"<p><b>Redundant lines</b>{origin} ({len(redundant)} of {lines}: the "
+                         f"plan stays identifiable without each of them; leave-one-line-out "
+                         f"cross-validation uses them): {', '.join(redundant)}</p>")
         else:
             parts.append("<p>No line is redundant: cross-validation holds out blocks of "
                          "targets.</p>")
@@ -276,20 +339,24 @@ class IdentificationView(View):
     def _fill_lines(self, record: IdentificationRecord) -> None:
         if record.readings is None:
             self.residual_note.setText(
-                "This identification was stored without its residuals (projects written by "
-                "volucal calibrate keep only the model): press Identify to compute them.")
+                "This identification was stored without its residuals (by an older volucal, "
+                "which kept only the model): press Identify to compute them.")
             return
         self.residual_note.setText("Select a line to see its residual by run.")
         rows = record.readings.line_summary()
         self.lines.setSortingEnabled(False)
         self.lines.setRowCount(len(rows))
         for r, row in enumerate(rows):
-            cells = [row["line"], row["group"], row["readings"], row["rms"], row["max_abs"],
-                     plots.unit_label(row["unit"])]
+            unit = row["unit"]
+            cells = [row["line"], row["group"], row["readings"],
+                     round(self.units.value(row["rms"], unit), self.units.unit(unit).decimals + 1),
+                     round(self.units.value(row["max_abs"], unit),
+                           self.units.unit(unit).decimals + 1),
+                     self.units.symbol(unit)]
             for c, value in enumerate(cells):
                 item = QTableWidgetItem()
                 if isinstance(value, float):
-                    item.setData(Qt.ItemDataRole.DisplayRole, round(value, 4))
+                    item.setData(Qt.ItemDataRole.DisplayRole, value)
                 elif isinstance(value, int):
                     item.setData(Qt.ItemDataRole.DisplayRole, value)
                 else:
@@ -309,10 +376,11 @@ class IdentificationView(View):
         name = cell.text()
         result = evidence.line_residual(self.record.readings, name)
         item = self.residual_plot.getPlotItem()
-        plots.style(item, result.title, result.x_label, result.y_label)
+        plots.style(item, result.title, result.x_label, result.y_axis(self.units))
         for index, series in enumerate(result.series):
-            item.addItem(pg.PlotDataItem(series.x, series.y, pen=plots.pen(plots.color(index),
-                                                                             1.2)))
+            item.addItem(pg.PlotDataItem(series.x, result.y_shown(series.y, self.units),
+                                         pen=plots.pen(plots.color(index), 1.2),
+                                         name=series.name))
 
 
 def _short(value: object) -> str:

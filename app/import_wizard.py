@@ -98,7 +98,7 @@ class ImportWizard(QWizard):
     """File ▸ Import logs… ``imported`` holds the ImportResult once the wizard is finished."""
 
     def __init__(self, machine: Machine | None = None, paths: Sequence[Path] = (),
-                 parent: QWidget | None = None) -> None:
+                 parent: QWidget | None = None, existing_lines: Sequence[str] = ()) -> None:
         super().__init__(parent)
         self.setObjectName("importWizard")
         self.setWindowTitle("Import laser logs")
@@ -106,6 +106,9 @@ class ImportWizard(QWizard):
         self.setOption(QWizard.WizardOption.NoBackButtonOnLastPage, True)
         self.resize(1100, 760)
         self.project_machine = machine
+        #: Lines the project already has: a name among them is refused on the Plan page unless
+        #: the user chooses to replace them.
+        self.existing_lines = frozenset(existing_lines)
         self.runner = TaskRunner(self)
         self.base_plan: Plan | None = None
         self.specs: dict[str, LineSpec] = {}
@@ -458,6 +461,12 @@ class PlanPage(QWizardPage):
         save.clicked.connect(self._save_dialog)
         self.drop_outliers = QCheckBox("leave out readings flagged as outliers")
         self.drop_outliers.setChecked(Preferences.load().drop_outliers)
+        self.replace_existing = QCheckBox("replace the project's lines of the same name")
+        self.replace_existing.setObjectName("replaceExisting")
+        self.replace_existing.setToolTip("their readings are replaced by these; Edit ▸ Undo "
+                                         "brings them back")
+        self.replace_existing.setVisible(False)
+        self.replace_existing.toggled.connect(lambda _c: self._changed())
         self.error = QLabel()
         self.error.setObjectName("planError")
         self.error.setWordWrap(True)
@@ -478,6 +487,7 @@ class PlanPage(QWizardPage):
         layout.addLayout(buttons)
         layout.addWidget(splitter, 1)
         layout.addWidget(self.error)
+        layout.addWidget(self.replace_existing)
         for box in (*self.tool, *self.leads, *[b for pair in self.stroke.values() for b in pair]):
             box.valueChanged.connect(lambda _v: self._changed())
         self.name.textChanged.connect(lambda _t: self._changed())
@@ -611,10 +621,35 @@ class PlanPage(QWizardPage):
             self._valid = False
             self._draw(None)
         else:
-            self.error.setText("")
-            self._valid = True
+            problem = self.project_conflict(plan)
+            self.error.setText(problem)
+            self._valid = not problem
             self._draw(plan)
         self.completeChanged.emit()
+
+    def clashes(self, plan: Plan) -> list[str]:
+        """Line names of the plan the project already has."""
+        existing = self.wizard().existing_lines
+        return [spec.name for spec in plan.lines if spec.name in existing]
+
+    def project_conflict(self, plan: Plan) -> str:
+        """Why the project cannot take these lines as they are (another machine, names it
+        already has and replacing them not chosen), or ""."""
+        wizard = self.wizard()
+        project_machine = wizard.project_machine
+        if project_machine is not None and wizard.existing_lines and \
+                project_machine != plan.machine:
+            return (f"These lines are of another machine than the project's "
+                    f"({project_machine.name!r}: chain, strokes, tool offset and screw leads "
+                    "must be the same). Import them into a new project (File ▸ New project).")
+        clashes = self.clashes(plan)
+        self.replace_existing.setVisible(bool(clashes))
+        if clashes and not self.replace_existing.isChecked():
+            shown = ", ".join(clashes[:6]) + (" …" if len(clashes) > 6 else "")
+            return (f"The project already has {len(clashes)} line(s) of these names: {shown}. "
+                    "Rename them in the table (the name column), or check “replace the "
+                    "project's lines of the same name”.")
+        return ""
 
     def _draw(self, plan: Plan | None) -> None:
         if plan is None:
@@ -644,10 +679,15 @@ class PlanPage(QWizardPage):
 
     def validatePage(self) -> bool:
         try:
-            self.wizard().plan = self.build_plan()
+            plan = self.build_plan()
         except (PlanError, MachineError) as exc:
             self.error.setText(str(exc))
             return False
+        problem = self.project_conflict(plan)
+        if problem:
+            self.error.setText(problem)
+            return False
+        self.wizard().plan = plan
         return True
 
     # ---- plan files ----------------------------------------------------------------------------

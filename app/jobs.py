@@ -32,12 +32,16 @@ from volucal.core.progress import CancelToken, ProgressCallback, check, report
 from volucal.core.project import Project
 from volucal.core.residuals import LoopOptions, LoopResult, close_loop
 from volucal.core.resources import demo_plan
+from volucal.core.result_trees import loop_result_trees
 
 from .factors import RANKING_GRID_MM, SensitivitySetup, sensitivity_tree
 from .records import (
+    IdentificationRecord,
+    Live,
     LoopRecord,
     identification_result_tree,
     json_text,
+    loop_identifiability,
     stored_model,
 )
 
@@ -61,51 +65,85 @@ def budget_of(project: Project) -> UncertaintyBudget:
 
 @dataclass(frozen=True, eq=False)
 class Identified:
+    """An identification with what the window stores and shows of it, made where it was
+    computed (a worker process): the GUI thread only files them."""
+
     identification: Identification
     options: IdentifyOptions
+    record: IdentificationRecord
+    stored: dict[str, Any]
 
     def tree(self) -> dict[str, Any]:
-        return identification_result_tree(self.identification, self.options)
+        return self.stored
+
+
+def without_system(identification: Identification) -> Identification:
+    """The identification without its linear system (the normal equations of every line: tens
+    of megabytes for a 49-line plan), which the workbench never reads once the records and
+    trees are made: what a worker process sends back to the window is then small."""
+    return replace(identification, system=None)  # type: ignore[arg-type]
 
 
 def run_identification(measurement: Measurement, options: IdentifyOptions,
                        progress: ProgressCallback | None = None,
-                       cancel: CancelToken | None = None) -> Identified:
-    return Identified(identify(measurement, options, progress=progress, cancel=cancel), options)
+                       cancel: CancelToken | None = None, name: str = "main") -> Identified:
+    identification = identify(measurement, options, progress=progress, cancel=cancel)
+    return Identified(without_system(identification), options,
+                      IdentificationRecord.from_identification(name, identification, options),
+                      identification_result_tree(identification, options))
 
 
 @dataclass(frozen=True, eq=False)
 class LoopRun:
+    """A closed loop with its project trees and view records (made in the worker)."""
+
     loop: LoopResult
     options: LoopOptions
+    stored: dict[tuple[str, str], dict[str, Any]]
+    records: dict[tuple[str, str], Any]
+
+    @classmethod
+    def of(cls, loop: LoopResult, options: LoopOptions) -> LoopRun:
+        identify_options = options.identify
+        records = {
+            ("identifications", "main"): IdentificationRecord.from_identification(
+                "main", loop.base, identify_options),
+            ("identifications", "loop"): IdentificationRecord.from_identification(
+                "loop", loop.final, identify_options, loop_identifiability(loop)),
+            ("loops", "main"): LoopRecord.from_loop("main", loop),
+        }
+        light = replace(loop, base=without_system(loop.base), final=without_system(loop.final))
+        return cls(light, options, loop_result_trees(loop, identify_options), records)
 
     def trees(self) -> dict[tuple[str, str], dict[str, Any]]:
         """The project results of a loop: the identifications before and after, the report."""
-        identify_options = self.options.identify
-        return {
-            ("identifications", "main"): identification_result_tree(self.loop.base,
-                                                                     identify_options),
-            ("identifications", "loop"): identification_result_tree(self.loop.final,
-                                                                     identify_options),
-            ("loops", "main"): LoopRecord.from_loop("main", self.loop).to_tree(),
-        }
+        return self.stored
+
+    def live(self) -> dict[tuple[str, str], Any]:
+        """The same results as the document's live objects (core object and view record)."""
+        values = {("identifications", "main"): self.loop.base,
+                  ("identifications", "loop"): self.loop.final, ("loops", "main"): self.loop}
+        return {key: Live(values[key], record) for key, record in self.records.items()}
 
 
 def run_loop(measurement: Measurement, options: LoopOptions,
              progress: ProgressCallback | None = None,
              cancel: CancelToken | None = None) -> LoopRun:
-    return LoopRun(close_loop(measurement, options, progress, cancel), options)
+    return LoopRun.of(close_loop(measurement, options, progress, cancel), options)
 
 
 @dataclass(frozen=True, eq=False)
 class Refit:
-    """The 21 errors refitted with the effects the user accepted."""
+    """The 21 errors refitted with the effects the user accepted, with the record and tree of
+    the identification it replaces (``name``)."""
 
     identification: Identification
     cross_validation: CrossValidation
     options: IdentifyOptions
     accepted: tuple[str, ...]
     rejected: tuple[str, ...]
+    record: IdentificationRecord
+    stored: dict[str, Any]
 
 
 def refit_with_effects(
@@ -117,6 +155,7 @@ def refit_with_effects(
     rejected: Sequence[str] = (),
     progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
+    name: str = "loop",
 ) -> Refit:
     """Identify again with exactly ``effects`` (the loop's refit: no redundancy analysis, the
     previous model as the linearisation point) and cross-validate as the loop does."""
@@ -126,8 +165,15 @@ def refit_with_effects(
     check(cancel)
     report(progress, 0.85, "cross-validating")
     cv = cross_validate(result.system, result.readings, list(redundant_lines))
+    # the plan's redundant lines, as the loop's own final identification carries them
+    identifiability = dict(result.identifiability.to_json())
+    identifiability["redundant_lines"] = list(redundant_lines)
+    identifiability["redundancy_from"] = "the 21-error fit before the loop"
     report(progress, 1.0, "refitted")
-    return Refit(result, cv, options, tuple(e.label for e in effects), tuple(rejected))
+    return Refit(without_system(result), cv, options, tuple(e.label for e in effects),
+                 tuple(rejected),
+                 IdentificationRecord.from_identification(name, result, options, identifiability),
+                 identification_result_tree(result, options, identifiability))
 
 
 # --------------------------------------------------------------------------------------------
@@ -168,7 +214,7 @@ def build_demo_project(path: Path, sensitivity_n: int = 1400,
     loop = result.loop
     budget_options = replace(options, identify=replace(options.identify,
                                                        budget=loop.base.budget))
-    run = LoopRun(loop, budget_options)
+    run = LoopRun.of(loop, budget_options)
     setup = SensitivitySetup.identified(result.source.model, loop.final.covariance,
                                         n=sensitivity_n, identification="loop")
     check(cancel)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -40,12 +41,13 @@ from volucal.core.residuals import LoopOptions
 from volucal.core.userror import UserError
 
 from . import evidence, jobs, plots
-from .document import Live, ProjectDocument
+from .document import ProjectDocument
+from .engine import ProcessCall
 from .records import (
     IdentificationRecord,
+    Live,
     LoopRecord,
     effect_from_json,
-    identification_result_tree,
     identify_options,
     stored_model,
 )
@@ -113,6 +115,7 @@ class LoopView(View):
 
         self.unexplained = QListWidget()
         self.unexplained.setObjectName("unexplained")
+        self.unexplained.setWordWrap(True)
         unexplained_box = QGroupBox("Still unexplained, and warnings")
         QVBoxLayout(unexplained_box).addWidget(self.unexplained)
 
@@ -130,11 +133,11 @@ class LoopView(View):
         self.residual_box.currentIndexChanged.connect(lambda _i: self._show_evidence())
         self.evidence_plot = plots.make_plot("Evidence")
         self.evidence_plot.setObjectName("evidencePlot")
-        self.evidence_legend = self.evidence_plot.addLegend(offset=(10, 10))
+        self.evidence_legend = plots.add_legend(self.evidence_plot.getPlotItem())
         self.evidence_note = QLabel()
         self.evidence_note.setWordWrap(True)
         self.rms_plot = plots.make_plot("RMS residual per group: before and after", None, "RMS")
-        self.rms_plot.addLegend(offset=(10, 10))
+        plots.add_legend(self.rms_plot.getPlotItem())
         self.rms_table = QTableWidget(0, 4)
         self.rms_table.setObjectName("rmsTable")
         self.rms_table.setHorizontalHeaderLabels(["group", "before", "after", "unit"])
@@ -157,6 +160,7 @@ class LoopView(View):
         splitter.addWidget(right)
         splitter.setStretchFactor(0, 2)
         splitter.setStretchFactor(1, 3)
+        splitter.setSizes([520, 780])
         layout = QVBoxLayout(self)
         layout.addLayout(top)
         layout.addWidget(splitter, 1)
@@ -181,22 +185,13 @@ class LoopView(View):
         self.summary.setText("closing the loop…")
         self.run_task(
             "closed loop",
-            lambda progress, cancel: jobs.run_loop(measurement, options, progress, cancel),
+            ProcessCall(jobs.run_loop, (measurement, options)),
             self._looped,
             on_cancel=lambda: self.summary.setText("loop cancelled"),
         )
 
     def _looped(self, run: jobs.LoopRun) -> None:
-        loop = run.loop
-        identify = run.options.identify
-        live = {
-            ("identifications", "main"): Live(loop.base, IdentificationRecord.from_identification(
-                "main", loop.base, identify)),
-            ("identifications", "loop"): Live(loop.final, IdentificationRecord.from_identification(
-                "loop", loop.final, identify)),
-            ("loops", "main"): Live(loop, LoopRecord.from_loop("main", loop)),
-        }
-        self.document.put_results("close the loop", run.trees(), live)
+        self.document.put_results("close the loop", run.trees(), run.live())
         self.select("main")
 
     def refit(self) -> None:
@@ -226,8 +221,8 @@ class LoopView(View):
         self.summary.setText("refitting…")
         self.run_task(
             "refit with the accepted effects",
-            lambda progress, cancel: jobs.refit_with_effects(
-                measurement, chosen, options, initial, redundant, rejected, progress, cancel),
+            ProcessCall(partial(jobs.refit_with_effects, name=record.final),
+                        (measurement, chosen, options, initial, redundant, rejected)),
             self._refitted,
             on_cancel=lambda: self.summary.setText("refit cancelled"),
         )
@@ -246,16 +241,13 @@ class LoopView(View):
         }
         candidates = tuple({**c, "kept": c["label"] in refit.accepted} for c in record.candidates)
         new_record = replace(record, candidates=candidates, decisions=decisions)
-        ident_record = IdentificationRecord.from_identification(final, refit.identification,
-                                                                refit.options)
         trees = {
-            ("identifications", final): identification_result_tree(refit.identification,
-                                                                    refit.options),
+            ("identifications", final): refit.stored,
             ("loops", record.name): new_record.to_tree(),
         }
         live_loop = self.document.live.get(("loops", record.name))
         live = {
-            ("identifications", final): Live(refit.identification, ident_record),
+            ("identifications", final): Live(refit.identification, refit.record),
             ("loops", record.name): Live(None if live_loop is None else live_loop.value,
                                          new_record),
         }
@@ -287,6 +279,9 @@ class LoopView(View):
         self.effects.clear()
         self.unexplained.clear()
         self.evidence_plot.clear()
+        self.evidence_plot.getPlotItem().setLogMode(x=False, y=False)
+        plots.style(self.evidence_plot.getPlotItem(), "Evidence", "", "")
+        self.evidence_note.clear()
         self.rms_plot.clear()
         self.rms_table.setRowCount(0)
         self.record = None
@@ -309,28 +304,40 @@ class LoopView(View):
         self._fill_rms(report)
         rms = report.get("residual_rms_um", {})
         cv = report.get("cv_rms_um", {})
-        text = (f"RMS {_num(rms.get('before_loop'))} → {_num(rms.get('after_loop'))} µm, "
-                f"cross-validated {_num(cv.get('before_loop'))} → {_num(cv.get('after_loop'))} "
-                f"µm ({cv.get('method', '?')})")
+        unit = self.units.symbol("um")
+
+        def um(value: Any) -> str:
+            return _num(None if value is None else self.units.value(float(value), "um"))
+
+        text = (f"RMS {um(rms.get('before_loop'))} → {um(rms.get('after_loop'))} {unit}, "
+                f"cross-validated {um(cv.get('before_loop'))} → {um(cv.get('after_loop'))} "
+                f"{unit} ({cv.get('method', '?')})")
         if record.decisions:
-            text += (f"; refitted by hand: RMS {_num(record.decisions.get('rms_um_after'))} µm, "
-                     f"CV {_num(record.decisions.get('cv_rms_um_after'))} µm")
+            text += (f"; refitted by hand: RMS {um(record.decisions.get('rms_um_after'))} "
+                     f"{unit}, CV {um(record.decisions.get('cv_rms_um_after'))} {unit}")
         self.summary.setText(text)
         self.refit_button.setEnabled(self._can_refit() and not self.runner.busy)
         if self.steps.rowCount():
             self.steps.selectRow(0)
 
     def _fill_steps(self, steps: list[Mapping[str, Any]]) -> None:
+        symbol = self.units.symbol("um")
+        self.steps.setHorizontalHeaderLabels(
+            [name.replace("µm", symbol) for name in STEP_COLUMNS])
         self.steps.setRowCount(len(steps))
+
+        def um(value: Any) -> str:
+            return _num(None if value is None else self.units.value(float(value), "um"))
+
         for row, step in enumerate(steps):
             effect = step.get("effect", {})
             ev = effect.get("evidence", {})
             rms, cv = step.get("rms_um", {}), step.get("cv_rms_um", {})
             cells = [
                 str(step.get("step")), str(effect.get("label", effect.get("kind"))),
-                _num(ev.get("F")), _num(ev.get("log10_false_alarm")), _num(ev.get("magnitude_um")),
-                f"{_num(rms.get('before'))} → {_num(rms.get('after'))}",
-                f"{_num(cv.get('before'))} → {_num(cv.get('after'))}",
+                _num(ev.get("F")), _num(ev.get("log10_false_alarm")), um(ev.get("magnitude_um")),
+                f"{um(rms.get('before'))} → {um(rms.get('after'))}",
+                f"{um(cv.get('before'))} → {um(cv.get('after'))}",
                 "kept" if step.get("kept") else "rejected",
             ]
             for column, text in enumerate(cells):
@@ -360,7 +367,7 @@ class LoopView(View):
             for effect in record.report.get("effects", []):
                 self.effects.addItem(f"{effect.get('kind')} {effect.get('axis') or ''} (kept)")
             self.effects_note.setText("This loop was stored without its effect definitions "
-                                      "(volucal calibrate): close the loop again to accept or "
+                                      "(by an older volucal): close the loop again to accept or "
                                       "reject effects.")
         self.effects.blockSignals(False)
 
@@ -390,22 +397,35 @@ class LoopView(View):
         groups = [g for g in GROUP_ORDER if g in before or g in after]
         self.rms_table.setRowCount(len(groups))
         for row, group in enumerate(groups):
-            unit = "µrad" if group == "angular" else "µm"
-            for column, text in enumerate((group, _num(before.get(group)), _num(after.get(group)),
-                                           unit)):
-                self.rms_table.setItem(row, column, QTableWidgetItem(text))
-        x = np.arange(len(groups), dtype=float)
+            unit = "urad" if group == "angular" else "um"
+            for column, text in enumerate((group,
+                                           self.units.text(before.get(group), unit, False, 1),
+                                           self.units.text(after.get(group), unit, False, 1),
+                                           self.units.symbol(unit))):
+                cell = QTableWidgetItem(text)
+                if column in (1, 2):
+                    cell.setTextAlignment(Qt.AlignmentFlag.AlignRight
+                                          | Qt.AlignmentFlag.AlignVCenter)
+                self.rms_table.setItem(row, column, cell)
+        self.rms_table.resizeColumnsToContents()
         item = self.rms_plot.getPlotItem()
-        item.addItem(pg.BarGraphItem(x=x - 0.2, height=[before.get(g, 0.0) for g in groups],
-                                     width=0.38, brush=plots.brush(plots.BACKWARD, 170),
+        item.setLabel("left", f"RMS ({self.units.symbol('um')}; angular "
+                              f"{self.units.symbol('urad')})")
+        shown = [[self.units.value(values.get(g, 0.0) or 0.0, "urad" if g == "angular" else "um")
+                  for g in groups] for values in (before, after)]
+        x = np.arange(len(groups), dtype=float)
+        item.addItem(pg.BarGraphItem(x=x - 0.2, height=shown[0], width=0.38,
+                                     brush=plots.brush(plots.BACKWARD, 170),
                                      name="before the loop"))
-        item.addItem(pg.BarGraphItem(x=x + 0.2, height=[after.get(g, 0.0) for g in groups],
-                                     width=0.38, brush=plots.brush(plots.FORWARD, 170),
+        item.addItem(pg.BarGraphItem(x=x + 0.2, height=shown[1], width=0.38,
+                                     brush=plots.brush(plots.FORWARD, 170),
                                      name="after the loop"))
         plots.category_ticks(item.getAxis("bottom"), groups)
 
     def _show_evidence(self) -> None:
         self.evidence_plot.clear()
+        self.evidence_plot.getPlotItem().setLogMode(x=False, y=False)
+        plots.style(self.evidence_plot.getPlotItem(), "Evidence", "", "")
         self.evidence_note.clear()
         rows = self.steps.selectionModel().selectedRows() if self.steps.selectionModel() else []
         if self.record is None or not rows:
@@ -415,8 +435,9 @@ class LoopView(View):
         source = self._after if use_after else self._before
         if source is None or source.readings is None or self.document.machine is None:
             self.evidence_note.setText(
-                "The residuals of this loop are not in the project (volucal calibrate keeps "
-                "only the models): close the loop again to see the evidence plots.")
+                "The residuals of this loop are not in the project (it was written by an older "
+                "volucal, which kept only the models): close the loop again to see the evidence "
+                "plots.")
             return
         effect = dict(step.get("effect", {}))
         for candidate in self.record.candidates:
@@ -424,16 +445,17 @@ class LoopView(View):
                 effect["effect"] = candidate.get("effect")
         result = evidence.for_effect(source.readings, effect, self.document.machine)
         item = self.evidence_plot.getPlotItem()
-        plots.style(item, result.title, result.x_label, result.y_label)
+        plots.style(item, result.title, result.x_label, result.y_axis(self.units))
         item.setLogMode(x=result.log_x, y=False)
         for index, series in enumerate(result.series):
             colour = plots.color(index)
+            y = result.y_shown(series.y, self.units)
             if series.style == "points":
-                item.addItem(pg.ScatterPlotItem(series.x, series.y, size=3, pen=None,
+                item.addItem(pg.ScatterPlotItem(series.x, y, size=3, pen=None,
                                                 brush=plots.brush(colour, 150),
                                                 name=series.name if index < 8 else None))
             else:
-                item.addItem(pg.PlotDataItem(series.x, series.y, pen=plots.pen(colour, 1.4),
+                item.addItem(pg.PlotDataItem(series.x, y, pen=plots.pen(colour, 1.4),
                                              name=series.name if index < 8 else None))
         for x, label in result.markers:
             plots.add_marker(item, math.log10(x) if result.log_x else x, label)

@@ -7,12 +7,16 @@ Errors the user can fix show the core's message in a dialog and leave the projec
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
+from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import shiboken6
 from PySide6.QtCore import QStandardPaths, Qt
 from PySide6.QtGui import (
     QAction,
+    QActionGroup,
     QCloseEvent,
     QDragEnterEvent,
     QDropEvent,
@@ -29,13 +33,17 @@ from PySide6.QtWidgets import (
     QPushButton,
     QStackedWidget,
 )
+from volucal.core.certificate import Certificate
 from volucal.core.project import Project
+from volucal.core.tolerances import Tolerances
 from volucal.core.userror import UserError
 
-from . import jobs, settings
+from . import jobs, plots, settings
+from .comparison_view import ComparisonView
 from .compensation_view import CompensationView
 from .dialogs import PreferencesDialog, about_box, show_bug, show_error
-from .document import Live, ProjectDocument
+from .document import ProjectDocument
+from .engine import ProcessCall, prestart
 from .factors import SensitivityRecord
 from .identification_view import IdentificationView
 from .import_wizard import ImportWizard
@@ -44,9 +52,11 @@ from .loop_view import LoopView
 from .machine_view import MachineView
 from .measurement_view import MeasurementView
 from .project_tree import ProjectTree
-from .records import IdentificationRecord, LoopRecord
+from .records import Live
+from .report_dialog import ReportDialog, TolerancesDialog
 from .sensitivity_view import SensitivityView
 from .tasks import Task, TaskRunner, wait_for_all
+from .user_guide import UserGuide
 from .view_base import View
 
 log = logging.getLogger("volucal.app")
@@ -56,7 +66,19 @@ PROJECT_FILTER = "volucal projects (*.h5 *.hdf5);;All files (*)"
 KIND_VIEW = {"machine": "machine", "measurements": "measurement",
              "identifications": "identification", "loops": "loop", "sensitivity": "sensitivity",
              "compensation": "compensation"}
-VIEW_ORDER = ("machine", "measurement", "identification", "loop", "sensitivity", "compensation")
+VIEW_ORDER = ("machine", "measurement", "identification", "loop", "sensitivity", "compensation",
+              "comparison")
+LENGTH_CHOICES = (("um", "µm"), ("mm", "mm"), ("inch", "inch"))
+ANGLE_CHOICES = (("urad", "µrad"), ("arcsec", "arcsec"), ("um_per_m", "µm/m"))
+
+
+def _without_checked(slot: Callable[[], object]) -> Callable[..., object]:
+    """A slot for ``QAction.triggered(bool)``: Qt hands the action's ``checked`` flag to the
+    slot, and no action of the window takes it (``save_as(False)`` would be a path)."""
+    def call(*_checked: object) -> object:
+        return slot()
+
+    return call
 
 
 def cache_folder() -> Path:
@@ -73,6 +95,8 @@ class MainWindow(QMainWindow):
         self.runner = TaskRunner(self)
         self._tasks: list[Task] = []
         self.wizard: ImportWizard | None = None
+        self.report_dialog: ReportDialog | None = None
+        self.last_report: Path | None = None
         self.undo_group = QUndoGroup(self)
         self.undo_group.addStack(self.document.undo_stack)
         self.undo_group.setActiveStack(self.document.undo_stack)
@@ -84,6 +108,7 @@ class MainWindow(QMainWindow):
             "loop": LoopView(self.document),
             "sensitivity": SensitivityView(self.document),
             "compensation": CompensationView(self.document),
+            "comparison": ComparisonView(self.document),
         }
         self.stack = QStackedWidget()
         for key in VIEW_ORDER:
@@ -123,12 +148,13 @@ class MainWindow(QMainWindow):
 
         self._build_menus()
         self._connect_document()
+        prestart()  # a worker process for the first long computation, ready when it is asked
         self.show_view("machine")
         self._update_title()
 
     # ---- menus ---------------------------------------------------------------------------
 
-    def _action(self, text: str, slot: object,
+    def _action(self, text: str, slot: Callable[[], object],
                 shortcut: QKeySequence | QKeySequence.StandardKey | None = None,
                 tip: str = "") -> QAction:
         action = QAction(text, self)
@@ -136,7 +162,7 @@ class MainWindow(QMainWindow):
             action.setShortcut(shortcut)
         if tip:
             action.setStatusTip(tip)
-        action.triggered.connect(slot)  # type: ignore[arg-type]
+        action.triggered.connect(_without_checked(slot))
         self.addAction(action)
         return action
 
@@ -157,9 +183,15 @@ class MainWindow(QMainWindow):
         file.addSeparator()
         file.addAction(self._action("&Import logs…", self.import_logs, QKeySequence("Ctrl+I"),
                                     "import laser logs and/or a plan.toml"))
+        file.addAction(self._action("Open a re-&measurement…", self.open_remeasurement, None,
+                                    "the same lines measured again on the compensated machine, "
+                                    "beside this project"))
         file.addSeparator()
         file.addAction(self._action("&Report (PDF)…", self.write_report, QKeySequence("Ctrl+R"),
                                     "the calibration report of the saved project"))
+        file.addAction(self._action("&Export the plots of this view…", self.export_plots,
+                                    QKeySequence("Ctrl+E"),
+                                    "every plot of the view as PNG, SVG and CSV into a folder"))
         file.addSeparator()
         file.addAction(self._action("&Quit", self.close, QKeySequence.StandardKey.Quit))
 
@@ -172,6 +204,9 @@ class MainWindow(QMainWindow):
         edit.addAction(self.undo_action)
         edit.addAction(self.redo_action)
         edit.addSeparator()
+        edit.addAction(self._action("&Tolerances per axis…", self.edit_tolerances, None,
+                                    "ISO 230-2 limits per axis: pass/fail in the views and the "
+                                    "report"))
         edit.addAction(self._action("&Preferences…", self.preferences, QKeySequence("Ctrl+,")))
 
         run = bar.addMenu("&Run")
@@ -187,13 +222,31 @@ class MainWindow(QMainWindow):
         view = bar.addMenu("&View")
         for number, key in enumerate(VIEW_ORDER, start=1):
             view.addAction(self._action(f"&{number} {self.views[key].title}",
-                                        lambda _c=False, k=key: self.show_view(k),
+                                        partial(self.show_view, key),
                                         QKeySequence(f"Ctrl+{number}")))
+        view.addSeparator()
+        units = view.addMenu("&Units")
+        current = settings.display_units()
+        self.unit_actions: dict[tuple[str, str], QAction] = {}
+        for kind, title, choices in (("length", "Deviations in", LENGTH_CHOICES),
+                                     ("angle", "Angles in", ANGLE_CHOICES)):
+            group = QActionGroup(self)
+            group.setExclusive(True)
+            units.addSection(title)
+            for key, text in choices:
+                action = self._action(text, partial(self.set_units, kind, key))
+                action.setCheckable(True)
+                action.setChecked(getattr(current, kind) == key)
+                group.addAction(action)
+                units.addAction(action)
+                self.unit_actions[(kind, key)] = action
         view.addSeparator()
         for dock in self.docks:
             view.addAction(dock.toggleViewAction())
 
         help_menu = bar.addMenu("&Help")
+        help_menu.addAction(self._action("&User guide", self.user_guide,
+                                         QKeySequence(QKeySequence.StandardKey.HelpContents)))
         help_menu.addAction(self._action("&About volucal", lambda: about_box(self)))
 
     def _fill_recent(self) -> None:
@@ -224,6 +277,7 @@ class MainWindow(QMainWindow):
         self.undo_group.removeStack(old.undo_stack)
         self._connect_document()
         old.deleteLater()
+        self.status_text.clear()
         self._update_title()
         self.show_view("machine")
 
@@ -299,27 +353,59 @@ class MainWindow(QMainWindow):
             return False
         settings.remember_project(saved)
         settings.set_last_folder(saved)
-        self.status_text.setText(f"saved {saved}")
+        self.status_text.setText(f"saved {saved.name}")
         return True
 
-    def write_report(self, pdf_path: Path | None = None) -> None:
-        """Save the project, gather its calibration report in a worker (the slow part: the
-        project, ISO 230-2, bands, conformance), then lay out the PDF on the GUI thread, where
-        Qt's text layout must run."""
-        if not self.save():
-            return
+    def write_report(self, pdf_path: Path | None = None) -> ReportDialog | None:
+        """File ▸ Report (PDF)…: the report describes the saved project file (it names it with
+        its checksum), so unsaved changes are saved first — after asking. The dialog takes the
+        certificate fields, the overall decision and where to write; the report is gathered in
+        a worker and laid out on the GUI thread (Qt's text layout must run there)."""
+        if not self.document.line_names():
+            show_error(self, "Calibration report", "The project has no measured lines yet: "
+                       "import the logs first (File ▸ Import logs…).")
+            return None
+        if self.document.path is None or not self.document.is_clean:
+            answer = QMessageBox.question(
+                self, "Calibration report",
+                "The report describes the saved project: it names the file and its checksum. "
+                "Save the project now?",
+                QMessageBox.StandardButton.Save | QMessageBox.StandardButton.Cancel)
+            if answer != QMessageBox.StandardButton.Save or not self.save():
+                return None
+        project_path = self.document.path
+        assert project_path is not None
+        from volucal.core.report_content import default_compensation_dir
+
+        dialog = ReportDialog(
+            Certificate.of_project(self.document.project),
+            Path(pdf_path) if pdf_path is not None else project_path.with_suffix(".pdf"),
+            default_compensation_dir(self.document.project, project_path), self)
+        dialog.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
+        dialog.accepted.connect(lambda: self._report_chosen(dialog))
+        self.report_dialog = dialog
+        dialog.open()
+        return dialog
+
+    def _report_chosen(self, dialog: ReportDialog) -> None:
+        certificate = dialog.certificate()
+        if certificate.to_json() != Certificate.of_project(self.document.project).to_json():
+            self.document.put_results("edit the certificate",
+                                      {("report", "certificate"): certificate.to_tree()})
+            if not self.save():
+                return
         project = self.document.path
         assert project is not None
-        if pdf_path is None:
-            chosen, _ = QFileDialog.getSaveFileName(
-                self, "Write the calibration report", str(project.with_suffix(".pdf")),
-                "PDF (*.pdf)")
-            if not chosen:
-                return
-            pdf_path = Path(chosen)
+        quantity, tolerance = dialog.conformance()
+        comparison = self.views["comparison"]
+        assert isinstance(comparison, ComparisonView)
         from volucal.core.report_content import ReportRequest, build_report
 
-        target = Path(pdf_path)
+        request = ReportRequest(
+            project_path=project, compensation_dir=dialog.compensation_dir(),
+            tolerance_um=tolerance, tolerance_on=quantity or "accuracy",
+            units=settings.display_units(), remeasurement_path=comparison.after_path)
+        target = dialog.pdf_path()
 
         def render(content: object) -> None:
             from .report import write_content
@@ -329,21 +415,88 @@ class MainWindow(QMainWindow):
             except UserError as exc:
                 show_error(self, "Calibration report", str(exc))
                 return
-            self.status_text.setText(f"report written: {written.path} ({written.pages} pages)")
+            self.last_report = written.path
+            self.status_text.setText(f"report written: {written.path.name} "
+                                     f"({written.pages} pages)")
+            log.info("report written: %s (%d pages)", written.path, written.pages)
 
         self.runner.run(
             "calibration report",
-            lambda progress, cancel: build_report(ReportRequest(project_path=project)),
+            lambda progress, cancel: build_report(request),
             render,
             lambda message: show_error(self, "Calibration report", message),
             lambda text: show_bug(self, "Calibration report", text),
         )
 
+    def edit_tolerances(self) -> TolerancesDialog:
+        """Edit ▸ Tolerances per axis…: the ISO 230-2 limits, an undoable edit."""
+        dialog = TolerancesDialog(Tolerances.of_project(self.document.project),
+                                  settings.display_units(), self)
+        dialog.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
+
+        def apply() -> None:
+            tolerances = dialog.result_tolerances
+            if tolerances is None:
+                return
+            self.document.put_results("edit the tolerances",
+                                      {("report", "tolerances"): tolerances.to_tree()})
+
+        dialog.accepted.connect(apply)
+        dialog.open()
+        return dialog
+
+    def open_remeasurement(self, path: Path | None = None) -> bool:
+        """File ▸ Open a re-measurement…: shown beside this project in the Before/after view."""
+        view = self.show_view("comparison")
+        assert isinstance(view, ComparisonView)
+        if path is None:
+            view.open_dialog()
+            return view.after_project is not None
+        return view.open_remeasurement(Path(path))
+
+    def export_plots(self, folder: Path | None = None) -> list[Path]:
+        """File ▸ Export the plots of this view…: PNG, SVG and CSV of each into a folder."""
+        if folder is None:
+            chosen = QFileDialog.getExistingDirectory(self, "Export the plots into",
+                                                      settings.last_folder())
+            if not chosen:
+                return []
+            folder = Path(chosen)
+        view = self.stack.currentWidget()
+        assert view is not None
+        try:
+            written = plots.export_view(view, Path(folder), prefix=view.objectName())
+        except (UserError, OSError) as exc:
+            show_error(self, "Export the plots", str(exc))
+            return []
+        settings.set_last_folder(Path(folder))
+        self.status_text.setText(f"{len(written)} file(s) written into {Path(folder).name}")
+        return written
+
+    def set_units(self, kind: str, key: str) -> None:
+        """View ▸ Units: the units every view (and the report) shows values in."""
+        units = replace(settings.display_units(), **{kind: key})
+        settings.set_display_units(units)
+        self.unit_actions[(kind, key)].setChecked(True)
+        for view in self.views.values():
+            view.set_units(units)
+
+    def user_guide(self) -> UserGuide | None:
+        try:
+            guide = UserGuide(self)
+        except UserError as exc:
+            show_error(self, "User guide", str(exc))
+            return None
+        guide.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
+        guide.show()
+        return guide
+
     # ---- importing -----------------------------------------------------------------------------
 
     def import_logs(self, paths: list[Path] | None = None) -> ImportWizard:
         """Open the import wizard (on ``paths`` when given)."""
-        wizard = ImportWizard(self.document.machine, paths or [], self)
+        wizard = ImportWizard(self.document.machine, paths or [], self,
+                              existing_lines=self.document.line_names())
         wizard.accepted.connect(lambda: self._apply_import(wizard))
         wizard.finished.connect(lambda _r: wizard.deleteLater())
         self.wizard = wizard
@@ -355,7 +508,8 @@ class MainWindow(QMainWindow):
         if result is None:
             return
         try:
-            self.document.import_lines(result)
+            self.document.import_lines(result,
+                                       replace=wizard.plan_page.replace_existing.isChecked())
         except UserError as exc:
             show_error(self, "Cannot add the lines", str(exc))
             return
@@ -394,7 +548,7 @@ class MainWindow(QMainWindow):
         self.status_text.setText("calibrating the demo data (once; about a minute)…")
         self.runner.run(
             "demo project",
-            lambda progress, cancel: jobs.build_demo_project(path, n, progress, cancel),
+            ProcessCall(jobs.build_demo_project, (path, n)),
             self._demo_built,
             lambda message: show_error(self, "Demo project", message),
             lambda text: show_bug(self, "Demo project", text),
@@ -406,15 +560,7 @@ class MainWindow(QMainWindow):
         except UserError as exc:
             show_error(self, "Demo project", str(exc))
             return
-        loop = demo.loop.loop
-        identify = demo.loop.options.identify
-        document.live.update({
-            ("identifications", "main"): Live(loop.base, IdentificationRecord.from_identification(
-                "main", loop.base, identify)),
-            ("identifications", "loop"): Live(loop.final, IdentificationRecord.from_identification(
-                "loop", loop.final, identify)),
-            ("loops", "main"): Live(loop, LoopRecord.from_loop("main", loop)),
-        })
+        document.live.update(demo.loop.live())
         record = document.sensitivity("main")
         document.live[("sensitivity", "main")] = Live(demo.sensitivity, SensitivityRecord(
             "main", record.indices, demo.sensitivity, record.setup))
@@ -479,7 +625,9 @@ class MainWindow(QMainWindow):
         if not self._tasks:
             self.progress.setVisible(False)
             self.cancel_button.setVisible(False)
-            self.status_text.setText(f"{task.title}: finished")
+            if self.status_text.text().startswith(f"{task.title}:"):
+                # (a result callback may have written its own message: it stays)
+                self.status_text.setText(f"{task.title}: {task.outcome or 'stopped'}")
 
     @property
     def busy(self) -> bool:

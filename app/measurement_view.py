@@ -2,8 +2,10 @@
 
 The plot shows every run (forward blue, backward red), the mean of each direction, the
 bidirectional mean and the ISO 230-2 band x̄ ± 2s of both directions; beside it the figures A, E,
-R, B, M and their unidirectional forms (ISO 230-2 clause 2, :mod:`volucal.core.iso230_2`); below
-it the environment logged during the line, against time.
+R, B, M and their unidirectional forms (ISO 230-2 clause 2, :mod:`volucal.core.iso230_2`) with the
+axis' tolerances and their pass/fail (:mod:`volucal.core.tolerances`), the per-target table and
+where the values came from; below it the environment logged during the line, against time.
+Deviations are shown in the chosen units (View ▸ Units).
 """
 
 from __future__ import annotations
@@ -13,30 +15,40 @@ import math
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt
+from PySide6.QtGui import QColor
 from PySide6.QtWidgets import (
     QComboBox,
     QHBoxLayout,
+    QHeaderView,
     QLabel,
+    QScrollArea,
     QSplitter,
     QTableWidget,
     QTableWidgetItem,
+    QTabWidget,
     QVBoxLayout,
     QWidget,
 )
+from volucal.core.conformance import CONFORMS
 from volucal.core.iso230_2 import Iso230Result, evaluate
-from volucal.core.measurement import LineData
+from volucal.core.measurement import Line, LineData
+from volucal.core.tolerances import ToleranceCheck, Tolerances, check_line
 
-from . import plots
+from . import jobs, plots
 from .document import ProjectDocument
 from .view_base import View
 
 FIGURES = (
     ("A", "accuracy A"), ("E", "systematic positioning error E"), ("R", "repeatability R"),
-    ("B", "reversal value B"), ("M", "mean bidirectional positioning error M"),
+    ("B", "reversal value B"), ("M", "mean bidirectional error M"),
     ("A_up", "accuracy A↑"), ("A_down", "accuracy A↓"), ("E_up", "systematic E↑"),
     ("E_down", "systematic E↓"), ("R_up", "repeatability R↑"), ("R_down", "repeatability R↓"),
     ("mean_reversal", "mean reversal B̄"),
 )
+FIGURE_COLUMNS = ("ISO 230-2", "value", "limit", "result")
+TARGET_COLUMNS = ("target mm", "x̄↑", "x̄↓", "x̄", "s↑", "s↓", "B", "R")
+PASS_COLOR = "#1e7b34"
+FAIL_COLOR = "#b3261e"
 
 
 class MeasurementView(View):
@@ -49,8 +61,7 @@ class MeasurementView(View):
         self.line_box.setObjectName("lineBox")
         self.line_box.setMinimumContentsLength(18)
         self.values_box = QComboBox()
-        self.values_box.addItems(["corrected (µm / µrad, measured − nominal)",
-                                  "raw (as in the file)"])
+        self.values_box.addItems(["corrected (measured − nominal)", "raw (as in the file)"])
         self.line_box.currentTextChanged.connect(self._show_line)
         self.values_box.currentIndexChanged.connect(lambda _i: self._show_line(
             self.line_box.currentText()))
@@ -62,48 +73,80 @@ class MeasurementView(View):
         top.addStretch(1)
 
         self.plot = plots.make_plot("Deviation", "target (mm)", "deviation (µm)")
-        self.plot.addLegend(offset=(10, 10))
+        self.plot.setObjectName("deviationPlot")
+        plots.add_legend(self.plot.getPlotItem())
         self.env_plot = plots.make_plot("Environment", "time since the line's start (min)",
                                         "temperature (°C)")
-        self.env_plot.addLegend(offset=(10, 10))
+        plots.add_legend(self.env_plot.getPlotItem())
         self.env_text = QLabel()
         self.env_text.setWordWrap(True)
-        self.figures = QTableWidget(len(FIGURES), 2)
+
+        self.figures = QTableWidget(len(FIGURES), len(FIGURE_COLUMNS))
         self.figures.setObjectName("isoFigures")
-        self.figures.setHorizontalHeaderLabels(["ISO 230-2", "value"])
+        self.figures.setHorizontalHeaderLabels(list(FIGURE_COLUMNS))
         self.figures.verticalHeader().setVisible(False)
-        self.figures.horizontalHeader().setStretchLastSection(True)
+        self.figures.verticalHeader().setDefaultSectionSize(22)
         self.figures.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
+        self.figures.setVerticalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        self.figures.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        header = self.figures.horizontalHeader()
+        header.setSectionResizeMode(0, QHeaderView.ResizeMode.Stretch)
+        for column in range(1, len(FIGURE_COLUMNS)):
+            header.setSectionResizeMode(column, QHeaderView.ResizeMode.ResizeToContents)
+        # every value visible at the window's default size: the table is as tall as its rows
+        self.figures.setMinimumHeight(22 * len(FIGURES) + header.sizeHint().height() + 4)
+        self.verdict = QLabel()
+        self.verdict.setObjectName("toleranceVerdict")
+        self.verdict.setWordWrap(True)
+        self.targets = QTableWidget(0, len(TARGET_COLUMNS))
+        self.targets.setObjectName("perTarget")
+        self.targets.setHorizontalHeaderLabels(list(TARGET_COLUMNS))
+        self.targets.verticalHeader().setVisible(False)
+        self.targets.verticalHeader().setDefaultSectionSize(20)
+        self.targets.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
         self.info = QLabel()
         self.info.setObjectName("lineInfo")
         self.info.setWordWrap(True)
         self.info.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.info.setAlignment(Qt.AlignmentFlag.AlignTop)
+        info_scroll = QScrollArea()
+        info_scroll.setWidgetResizable(True)
+        info_scroll.setWidget(self.info)
 
-        side = QWidget()
-        side_layout = QVBoxLayout(side)
-        side_layout.setContentsMargins(0, 0, 0, 0)
-        side_layout.addWidget(self.figures, 3)
-        side_layout.addWidget(self.info, 2)
-        upper = QSplitter(Qt.Orientation.Horizontal)
-        upper.addWidget(self.plot)
-        upper.addWidget(side)
-        upper.setStretchFactor(0, 3)
-        upper.setStretchFactor(1, 1)
+        figures_page = QWidget()
+        figures_layout = QVBoxLayout(figures_page)
+        figures_layout.setContentsMargins(2, 2, 2, 2)
+        figures_layout.addWidget(self.figures)
+        figures_layout.addWidget(self.verdict)
+        figures_layout.addStretch(1)
+        self.side = QTabWidget()
+        self.side.setObjectName("measurementTabs")
+        self.side.addTab(figures_page, "ISO 230-2")
+        self.side.addTab(self.targets, "Per target")
+        self.side.addTab(info_scroll, "Source")
+        self.side.setMinimumWidth(380)
+
+        left = QSplitter(Qt.Orientation.Vertical)
+        left.addWidget(self.plot)
         env = QWidget()
         env_layout = QVBoxLayout(env)
         env_layout.setContentsMargins(0, 0, 0, 0)
         env_layout.addWidget(self.env_plot, 1)
         env_layout.addWidget(self.env_text)
-        splitter = QSplitter(Qt.Orientation.Vertical)
-        splitter.addWidget(upper)
-        splitter.addWidget(env)
-        splitter.setStretchFactor(0, 3)
-        splitter.setStretchFactor(1, 1)
+        left.addWidget(env)
+        left.setStretchFactor(0, 3)
+        left.setStretchFactor(1, 1)
+        splitter = QSplitter(Qt.Orientation.Horizontal)
+        splitter.addWidget(left)
+        splitter.addWidget(self.side)
+        splitter.setStretchFactor(0, 1)
+        splitter.setStretchFactor(1, 0)
+        splitter.setCollapsible(1, False)
         layout = QVBoxLayout(self)
         layout.addLayout(top)
         layout.addWidget(splitter, 1)
         self.result: Iso230Result | None = None
+        self.checks: list[ToleranceCheck] = []
 
     # ---- refresh ---------------------------------------------------------------------------
 
@@ -130,8 +173,13 @@ class MeasurementView(View):
         self.plot.clear()
         self.env_plot.clear()
         self.result = None
+        self.checks = []
+        self.verdict.clear()
+        self.targets.setRowCount(0)
+        item = self.plot.getPlotItem()
         if not name or name not in self.document.project.lines:
             self.figures.clearContents()
+            item.setTitle("Deviation", size="10pt")
             self.info.setText("No line: import log files with File ▸ Import logs…")
             self.env_text.clear()
             return
@@ -140,49 +188,109 @@ class MeasurementView(View):
         data = stored.raw if raw else stored.corrected
         unit = stored.raw_unit if raw else stored.spec.unit
         self.result = evaluate(data, unit)
+        if not raw:
+            self.checks = check_line(Line(stored.spec, data),
+                                     Tolerances.of_project(self.document.project),
+                                     jobs.budget_of(self.document.project), self.result)
         self._plot_runs(data, self.result, unit, stored.spec.quantity)
         self._fill_figures(self.result, unit)
+        self._fill_targets(self.result, unit)
         self._fill_info(name)
         self._plot_environment(data)
 
+    def shown_unit(self, unit: str) -> str:
+        """The symbol values stored in ``unit`` are shown in (a raw file unit as it is)."""
+        return self.units.symbol(unit) if unit in ("um", "urad") else plots.unit_label(unit)
+
+    def shown(self, values: np.ndarray, unit: str) -> np.ndarray:
+        return self.units.convert(values, unit) if unit in ("um", "urad") else np.asarray(values)
+
+    def _text(self, value: float, unit: str) -> str:
+        if unit in ("um", "urad"):
+            return self.units.text(value, unit)
+        return "—" if not math.isfinite(value) else f"{value:.4g} {plots.unit_label(unit)}"
+
     def _plot_runs(self, data: LineData, result: Iso230Result, unit: str, quantity: str) -> None:
         item = self.plot.getPlotItem()
-        label = plots.unit_label(unit)
         what = {"linear": "positioning deviation", "straightness": "straightness deviation",
                 "angular": "angular deviation"}[quantity]
         item.setTitle(f"{what} — {self.line_box.currentText()}", size="10pt")
-        item.setLabel("left", f"deviation ({label})")
+        item.setLabel("left", f"deviation ({self.shown_unit(unit)})")
         x = data.targets_mm
         up = result.mean_up + 2 * result.s_up
         down = result.mean_down + 2 * result.s_down
         high = np.fmax(up, down)
         low = np.fmin(result.mean_up - 2 * result.s_up, result.mean_down - 2 * result.s_down)
-        plots.add_band(item, x, low, high)
+        plots.add_band(item, x, self.shown(low, unit), self.shown(high, unit))
         for run in range(data.runs):
             forward = data.run_direction[run] > 0
             colour = plots.FORWARD if forward else plots.BACKWARD
-            item.addItem(pg.PlotDataItem(x, data.deviations[run], pen=plots.pen(colour, 0.8,
-                                                                                 alpha=110)))
-        item.addItem(pg.PlotDataItem(x, result.mean_up, pen=plots.pen(plots.FORWARD, 2.2),
+            item.addItem(pg.PlotDataItem(x, self.shown(data.deviations[run], unit),
+                                         pen=plots.pen(colour, 0.8, alpha=110)))
+        item.addItem(pg.PlotDataItem(x, self.shown(result.mean_up, unit),
+                                     pen=plots.pen(plots.FORWARD, 2.2),
                                      name=f"mean ↑ ({result.runs_up} runs)"))
-        item.addItem(pg.PlotDataItem(x, result.mean_down, pen=plots.pen(plots.BACKWARD, 2.2),
+        item.addItem(pg.PlotDataItem(x, self.shown(result.mean_down, unit),
+                                     pen=plots.pen(plots.BACKWARD, 2.2),
                                      name=f"mean ↓ ({result.runs_down} runs)"))
-        item.addItem(pg.PlotDataItem(x, result.mean, pen=plots.pen("#000000", 1.6, dashed=True),
+        item.addItem(pg.PlotDataItem(x, self.shown(result.mean, unit),
+                                     pen=plots.pen("#000000", 1.6, dashed=True),
                                      name="bidirectional mean"))
         legend_band = pg.PlotDataItem([], [], pen=plots.pen(plots.BAND, 6, alpha=80),
                                       name="x̄ ± 2s band")
         item.addItem(legend_band)
 
     def _fill_figures(self, result: Iso230Result, unit: str) -> None:
-        label = plots.unit_label(unit)
+        checks = {c.quantity: c for c in self.checks}
         for row, (key, text) in enumerate(FIGURES):
             value = getattr(result, f"{key}_um")
-            self.figures.setItem(row, 0, QTableWidgetItem(text))
-            shown = "—" if not math.isfinite(value) else f"{value:.3f} {label}"
-            cell = QTableWidgetItem(shown)
-            cell.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
-            self.figures.setItem(row, 1, cell)
-        self.figures.resizeColumnToContents(0)
+            check = checks.get(key)
+            cells = [text, self._text(value, unit),
+                     "" if check is None else self._text(check.limit_um, "um"),
+                     "" if check is None else check.verdict]
+            for column, shown in enumerate(cells):
+                cell = QTableWidgetItem(shown)
+                if column:
+                    cell.setTextAlignment(Qt.AlignmentFlag.AlignRight
+                                          | Qt.AlignmentFlag.AlignVCenter)
+                if check is not None and column == 3:
+                    cell.setForeground(QColor(PASS_COLOR if check.passed else FAIL_COLOR))
+                    cell.setToolTip(
+                        f"ISO 14253-1 with U = {self._text(check.expanded_uncertainty_um, 'um')}"
+                        f" (k = 2): {check.decision}")
+                self.figures.setItem(row, column, cell)
+        if self.checks:
+            failed = [c for c in self.checks if not c.passed]
+            axis = self.checks[0].axis
+            undecided = [c for c in self.checks if c.decision != CONFORMS]
+            line = self.line_box.currentText()
+            text = (f"<b style='color:{FAIL_COLOR if failed else PASS_COLOR}'>{line} "
+                    f"{'fails' if failed else 'passes'} the tolerances of axis {axis}</b>")
+            if undecided and not failed:
+                text += (" — by ISO 14253-1 (with the uncertainty U) "
+                         + ", ".join(f"{c.quantity}: {c.decision}" for c in undecided))
+            elif failed:
+                text += " (" + ", ".join(c.quantity for c in failed) + " over the limit)"
+            self.verdict.setText(text)
+        else:
+            self.verdict.setText("No tolerance for this line: set the limits per axis in "
+                                 "Edit ▸ Tolerances…" if result.unit == "um" else "")
+
+    def _fill_targets(self, result: Iso230Result, unit: str) -> None:
+        columns = (result.mean_up, result.mean_down, result.mean, result.s_up, result.s_down,
+                   result.reversal, result.repeatability)
+        symbol = self.shown_unit(unit)
+        self.targets.setHorizontalHeaderLabels(
+            [TARGET_COLUMNS[0]] + [f"{name} {symbol}" for name in TARGET_COLUMNS[1:]])
+        self.targets.setRowCount(result.targets_mm.size)
+        for row, target in enumerate(result.targets_mm):
+            cells = [f"{target:g}"] + [self._text(float(c[row]), unit).rsplit(" ", 1)[0]
+                                       for c in columns]
+            for column, shown in enumerate(cells):
+                cell = QTableWidgetItem(shown)
+                cell.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+                self.targets.setItem(row, column, cell)
+        self.targets.resizeColumnsToContents()
 
     def _fill_info(self, name: str) -> None:
         stored = self.document.project.lines[name]

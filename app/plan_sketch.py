@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Signal
+from PySide6.QtGui import QPainterPath, QTransform
 from volucal.core.machine import AXES
 
 from . import plots
@@ -90,26 +91,53 @@ class PlanSketch(pg.GraphicsLayoutWidget):
                 plot.addItem(box)
             for line in self._lines:
                 self._draw_line(plot, line, i, j)
+            self._draw_ends(plot, i, j)
+
+    def _colour(self, line: SketchLine) -> str:
+        if line.name == self._selected:
+            return "#000000"
+        return plots.QUANTITY_COLOR.get(line.quantity, "#444444")
 
     def _draw_line(self, plot: pg.PlotItem, line: SketchLine, i: int, j: int) -> None:
+        """The line itself: one clickable curve (its name in the tooltip)."""
         chosen = line.name == self._selected
-        colour = "#000000" if chosen else plots.QUANTITY_COLOR.get(line.quantity, "#444444")
-        width = 3.5 if chosen else 1.6
         start = np.asarray(line.start_mm, dtype=float)
         end = line.end_mm
-        item = pg.PlotDataItem([start[i], end[i]], [start[j], end[j]], pen=plots.pen(colour, width))
+        item = pg.PlotDataItem([start[i], end[i]], [start[j], end[j]],
+                               pen=plots.pen(self._colour(line), 3.5 if chosen else 1.6))
         item.setCurveClickable(True, width=8)
         item.sigClicked.connect(lambda _item, name=line.name: self.lineClicked.emit(name))
         item.setToolTip(line.name)
         plot.addItem(item)
-        dot = pg.ScatterPlotItem([start[i]], [start[j]], size=7 if chosen else 5,
-                                 brush=plots.brush(colour, 255), pen=None)
-        dot.setToolTip(line.name)
-        plot.addItem(dot)
-        dx, dy = end[i] - start[i], end[j] - start[j]
-        if math.hypot(dx, dy) > 1e-6:
-            # pyqtgraph's arrow points along +x at angle 180 (its tip is at the position)
-            angle = 180.0 - math.degrees(math.atan2(dy, dx))
-            arrow = pg.ArrowItem(pos=(end[i], end[j]), angle=angle, headLen=9 if chosen else 7,
-                                 pen=plots.pen(colour, 1.0), brush=plots.brush(colour, 255))
-            plot.addItem(arrow)
+
+    def _draw_ends(self, plot: pg.PlotItem, i: int, j: int) -> None:
+        """Every line's start (a dot) and end (an arrowhead along the line), as two items per
+        view: a plan of 50 lines draws as fast as one of 5."""
+        starts, ends = [], []
+        for line in self._lines:
+            chosen = line.name == self._selected
+            colour = self._colour(line)
+            start = np.asarray(line.start_mm, dtype=float)
+            end = line.end_mm
+            starts.append({"pos": (start[i], start[j]), "size": 7 if chosen else 5,
+                           "brush": plots.brush(colour, 255), "pen": None})
+            dx, dy = end[i] - start[i], end[j] - start[j]
+            if math.hypot(dx, dy) > 1e-6:
+                ends.append({"pos": (end[i], end[j]), "size": 13 if chosen else 10,
+                             "symbol": _arrowhead(math.atan2(dy, dx)),
+                             "brush": plots.brush(colour, 255), "pen": plots.pen(colour, 1.0)})
+        if starts:
+            plot.addItem(pg.ScatterPlotItem(spots=starts))
+        if ends:
+            plot.addItem(pg.ScatterPlotItem(spots=ends))
+
+
+def _arrowhead(angle_rad: float) -> QPainterPath:
+    """A symbol whose tip is at the spot, pointing at ``angle_rad`` in the plot (y up; symbols
+    are drawn with y down, hence the sign)."""
+    path = QPainterPath()
+    path.moveTo(0.0, 0.0)
+    path.lineTo(-0.9, -0.35)
+    path.lineTo(-0.9, 0.35)
+    path.closeSubpath()
+    return QTransform().rotateRadians(-angle_rad).map(path)

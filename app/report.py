@@ -30,20 +30,23 @@ from PySide6.QtGui import (
     QPdfWriter,
     QTextDocument,
 )
+from volucal.core.certificate import Certificate
 from volucal.core.conformance import CONFORMS, DOES_NOT_CONFORM
-from volucal.core.report_content import (
+from volucal.core.display_units import DisplayUnits
+from volucal.core.report_blocks import (
     BarChart,
     Block,
     CurveGrid,
+    IsoGraphs,
     Paragraph,
-    ReportContent,
-    ReportRequest,
+    Signatures,
     Table,
-    build_report,
 )
+from volucal.core.report_content import ReportContent, ReportRequest, build_report
+from volucal.core.tolerances import Tolerances
 from volucal.core.userror import UserError
 
-from .report_plots import draw_bars, draw_curve
+from .report_plots import draw_bars, draw_curve, draw_iso_graph, draw_signatures
 
 RESOLUTION_DPI = 300
 MARGIN_MM = 16.0
@@ -51,6 +54,8 @@ BODY_PT = 9.0
 TABLE_PT = 7.0
 CURVE_HEIGHT_MM = 46.0
 CHART_HEIGHT_MM = 58.0
+ISO_GRAPH_HEIGHT_MM = 62.0
+SIGNATURE_HEIGHT_MM = 30.0
 GAP_MM = 3.0
 #: A heading needs this much room below it on the same page, or it starts the next page.
 KEEP_WITH_NEXT_MM = 35.0
@@ -60,6 +65,8 @@ KEEP_TABLE_ROWS = 12
 MIN_SPLIT_ROWS = 3
 VERDICT_COLORS = {CONFORMS: "#2a7d2e", DOES_NOT_CONFORM: "#b3261e"}
 NO_DECISION_COLOR = "#a05a00"
+PASS_COLOR = VERDICT_COLORS[CONFORMS]
+FAIL_COLOR = VERDICT_COLORS[DOES_NOT_CONFORM]
 
 CSS = f"""
 body {{ font-size: {BODY_PT}pt; color: #1b1b1b; }}
@@ -91,6 +98,10 @@ def write_report(
     tolerance_on: str = "accuracy",
     compensation_dir: str | Path | None = None,
     report_json: str | Path | None = None,
+    certificate: Certificate | None = None,
+    tolerances: Tolerances | None = None,
+    remeasurement: str | Path | None = None,
+    units: DisplayUnits | None = None,
 ) -> ReportFile:
     """Write the calibration report of a project as a PDF.
 
@@ -102,6 +113,10 @@ def write_report(
         A of each linear line; ``volumetric``: the largest |E|); none without a tolerance.
     compensation_dir, report_json : where the compensation files and the run's report.json are,
         when not beside the project (see :class:`volucal.core.report_content.ReportRequest`).
+    certificate, tolerances : certificate fields and ISO 230-2 limits per axis that replace the
+        project's.
+    remeasurement : a project of the lines measured again on the compensated machine.
+    units : the units deviations and angles are shown in (µm and µrad by default).
     """
     content = build_report(ReportRequest(
         project_path=Path(project_path),
@@ -109,6 +124,10 @@ def write_report(
         report_json=None if report_json is None else Path(report_json),
         tolerance_um=tolerance_um,
         tolerance_on=tolerance_on,
+        certificate=certificate,
+        tolerances=tolerances,
+        remeasurement_path=None if remeasurement is None else Path(remeasurement),
+        units=units or DisplayUnits(),
     ))
     return write_content(content, pdf_path)
 
@@ -215,14 +234,19 @@ class _Layout:
             self.table(block)
         elif isinstance(block, CurveGrid):
             self.curves(block)
+        elif isinstance(block, IsoGraphs):
+            self.iso_graphs(block)
+        elif isinstance(block, Signatures):
+            self.signatures(block)
         else:
             self.chart(block)
 
     def paragraph(self, block: Paragraph) -> str:
         text = html.escape(block.text)
-        if block.kind == "verdict":
+        if block.kind in ("verdict", "pass", "fail"):
             verdict = self.content.conformance.verdict if self.content.conformance else ""
-            color = VERDICT_COLORS.get(verdict, NO_DECISION_COLOR)
+            color = {"pass": PASS_COLOR, "fail": FAIL_COLOR}.get(
+                block.kind, VERDICT_COLORS.get(verdict, NO_DECISION_COLOR))
             return f'<p style="font-size: 11pt; font-weight: bold; color: {color}">{text}</p>'
         return f'<p class="{block.kind}">{text}</p>'
 
@@ -279,6 +303,21 @@ class _Layout:
 
             self.place(cell_height, draw, 2 * self.mm)
 
+    def iso_graphs(self, block: IsoGraphs) -> None:
+        for graph in block.graphs:
+            def draw(painter: QPainter, rect: QRectF, graph=graph) -> None:  # type: ignore[no-untyped-def]
+                draw_iso_graph(painter, rect, graph, self.scale)
+
+            self.place(ISO_GRAPH_HEIGHT_MM * self.mm, draw, self.mm)
+            if graph.caption:
+                self.place_html(f'<p class="caption">{html.escape(graph.caption)}</p>')
+
+    def signatures(self, block: Signatures) -> None:
+        def draw(painter: QPainter, rect: QRectF) -> None:
+            draw_signatures(painter, rect, block, self.scale)
+
+        self.place(SIGNATURE_HEIGHT_MM * self.mm, draw)
+
     def chart(self, chart: BarChart) -> None:
         def draw(painter: QPainter, rect: QRectF) -> None:
             draw_bars(painter, rect, chart, self.scale)
@@ -290,8 +329,8 @@ class _Layout:
         self.place_html(
             f"<h1>{html.escape(c.title)}</h1>"
             f'<p class="subtitle">{html.escape(c.subtitle)}</p>'
-            f'<p class="note">Generated {html.escape(c.generated)} from '
-            f"{html.escape(c.sources.get('project', ''))}</p>", 4 * self.mm)
+            f'<p class="note">Generated {html.escape(c.generated)} from the project '
+            f"{html.escape(Path(c.sources.get('project', '')).name)}</p>", 4 * self.mm)
 
     def run(self) -> int:
         self.title()
@@ -327,7 +366,7 @@ def _table_html(block: Table, rows: list[tuple[str, ...]]) -> str:
     align = {"l": "left", "r": "right", "c": "center"}
     columns = max([len(block.header), *(len(r) for r in rows)] or [1])
     letters = (block.align or "l" * columns).ljust(columns, "l")
-    out = ['<table width="100%" cellspacing="0" cellpadding="2" border="0.5" '
+    out = ['<table width="100%" cellspacing="0" cellpadding="3" border="0.5" '
            'style="border-color: #b0b0b0; border-style: solid">']
     if block.header:
         out.append("<tr>" + "".join(

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 from PySide6.QtCore import QPointF, QRectF, Qt
 from PySide6.QtGui import QBrush, QColor, QFont, QFontMetricsF, QPainter, QPen, QPolygonF
-from volucal.core.report_content import BarChart, Curve
+from volucal.core.report_blocks import BarChart, Curve, IsoGraph, Signatures
 
 INK = QColor("#1b1b1b")
 GRID = QColor("#d9d9d9")
@@ -197,3 +197,99 @@ def draw_bars(painter: QPainter, rect: QRectF, chart: BarChart, scale: float) ->
         painter.fillRect(QRectF(legend_x, frame.plot.top() + 3 * scale + metrics.ascent() * 0.2,
                                 6 * scale, metrics.ascent() * 0.8), SERIES[s % len(SERIES)])
         legend_x -= 6 * scale
+
+
+def draw_iso_graph(painter: QPainter, rect: QRectF, graph: IsoGraph, scale: float) -> None:
+    """The ISO 230-2 graph of a line: x̄↑ and x̄↓ with their ±2s bands, the bidirectional mean
+    (dashed), over the targets; a legend under the plot, off the data."""
+    x = np.asarray(graph.targets_mm, dtype=float)
+    up = np.asarray(graph.mean_up, dtype=float)
+    down = np.asarray(graph.mean_down, dtype=float)
+    s_up = np.asarray(graph.s_up, dtype=float)
+    s_down = np.asarray(graph.s_down, dtype=float)
+    bands = {"↑": (up - 2 * s_up, up + 2 * s_up), "↓": (down - 2 * s_down, down + 2 * s_down)}
+    values = np.concatenate([v for pair in bands.values() for v in pair])
+    finite = values[np.isfinite(values)]
+    y_min = min(0.0, float(finite.min())) if finite.size else -1.0
+    y_max = max(0.0, float(finite.max())) if finite.size else 1.0
+    pad = 0.08 * (y_max - y_min) if y_max > y_min else 1.0
+    metrics = QFontMetricsF(_font(6.5), painter.device())
+    legend_height = 1.6 * metrics.height()
+    plot_rect = QRectF(rect.left(), rect.top(), rect.width(), rect.height() - legend_height)
+    frame = _Frame(painter, plot_rect, scale, graph.title,
+                   nice_ticks(float(np.nanmin(x)), float(np.nanmax(x))),
+                   nice_ticks(y_min - pad, y_max + pad, 4), f"deviation ({graph.unit})")
+    series = (("x̄↑ ± 2s (forward)", up, bands["↑"], SERIES[0]),
+              ("x̄↓ ± 2s (backward)", down, bands["↓"], SERIES[1]))
+    painter.save()
+    painter.setClipRect(frame.plot)
+    for _label, mean, (low, high), colour in series:
+        keep = np.isfinite(mean) & np.isfinite(low) & np.isfinite(high)
+        if keep.sum() < 2:
+            continue
+        band = QColor(colour)
+        band.setAlpha(60)
+        outline = [QPointF(frame.x(a), frame.y(b)) for a, b in zip(x[keep], high[keep],
+                                                                   strict=True)]
+        outline += [QPointF(frame.x(a), frame.y(b)) for a, b in zip(x[keep][::-1],
+                                                                    low[keep][::-1], strict=True)]
+        painter.setPen(Qt.PenStyle.NoPen)
+        painter.setBrush(QBrush(band))
+        painter.drawPolygon(QPolygonF(outline))
+        painter.setPen(QPen(colour, 1.0 * scale))
+        painter.setBrush(Qt.BrushStyle.NoBrush)
+        painter.drawPolyline(QPolygonF([QPointF(frame.x(a), frame.y(b))
+                                        for a, b in zip(x[keep], mean[keep], strict=True)]))
+    both = np.isfinite(up) & np.isfinite(down)
+    if both.sum() >= 2:
+        painter.setPen(QPen(INK, 0.7 * scale, Qt.PenStyle.DashLine))
+        painter.drawPolyline(QPolygonF([QPointF(frame.x(a), frame.y(0.5 * (b + c)))
+                                        for a, b, c in zip(x[both], up[both], down[both],
+                                                           strict=True)]))
+    painter.setPen(QPen(INK, 0.4 * scale, Qt.PenStyle.DotLine))
+    painter.drawLine(QPointF(frame.plot.left(), frame.y(0.0)),
+                     QPointF(frame.plot.right(), frame.y(0.0)))
+    painter.restore()
+    frame.x_label("target (mm)")
+    # the legend, in a row under the plot
+    painter.setFont(_font(6.5))
+    left = frame.plot.left()
+    top = rect.bottom() - legend_height + 0.3 * metrics.height()
+    entries = [(label, colour, Qt.PenStyle.SolidLine) for label, _m, _b, colour in series]
+    entries.append(("bidirectional mean x̄", INK, Qt.PenStyle.DashLine))
+    for label, colour, style in entries:
+        painter.setPen(QPen(colour, 1.4 * scale, style))
+        y = top + metrics.height() / 2
+        painter.drawLine(QPointF(left, y), QPointF(left + 10 * scale, y))
+        painter.setPen(INK)
+        painter.drawText(QPointF(left + 13 * scale, top + metrics.ascent()), label)
+        left += 13 * scale + metrics.horizontalAdvance(label) + 12 * scale
+
+
+def draw_signatures(painter: QPainter, rect: QRectF, block: Signatures, scale: float) -> None:
+    """One column per role: the role, the name printed, and lines for the date and signature."""
+    painter.save()
+    font = _font(7.5)
+    bold = _font(7.5, bold=True)
+    metrics = QFontMetricsF(font, painter.device())
+    count = max(len(block.roles), 1)
+    gap = 10 * scale
+    width = (rect.width() - gap * (count - 1)) / count
+    for k, (role, name) in enumerate(block.roles):
+        left = rect.left() + k * (width + gap)
+        y = rect.top() + metrics.ascent()
+        painter.setFont(bold)
+        painter.setPen(INK)
+        painter.drawText(QPointF(left, y), role)
+        painter.setFont(font)
+        y += 1.6 * metrics.height()
+        painter.drawText(QPointF(left, y), f"Name: {name}" if name else "Name:")
+        for label in ("Date:", "Signature:"):
+            y += 2.4 * metrics.height()
+            painter.drawText(QPointF(left, y), label)
+            start = left + metrics.horizontalAdvance("Signature:") + 4 * scale
+            painter.setPen(QPen(INK, 0.5 * scale))
+            line_y = y + 1.5 * scale
+            painter.drawLine(QPointF(start, line_y), QPointF(left + width, line_y))
+            painter.setPen(INK)
+    painter.restore()

@@ -35,7 +35,8 @@ from volucal.core.sensitivity import OUTPUT_NAMES, SensitivityResult
 from volucal.core.userror import UserError
 
 from . import plots
-from .document import Live, ProjectDocument
+from .document import ProjectDocument
+from .engine import ProcessCall
 from .factors import (
     DISTRIBUTIONS,
     RANKING_GRID_MM,
@@ -43,7 +44,7 @@ from .factors import (
     SensitivitySetup,
     sensitivity_tree,
 )
-from .records import stored_model
+from .records import Live, stored_model
 from .settings import Preferences
 from .view_base import View
 
@@ -69,6 +70,8 @@ class SensitivityView(View):
         self.setObjectName("sensitivityView")
         prefs = Preferences.load()
         self.setup: SensitivitySetup | None = None
+        #: The identification result the factor table was built from (document.result_token).
+        self._setup_token: int | None = None
         self._centre_slice = False
         self._map_key: tuple[str, int, int, int] = ("", 0, 0, 0)
         self.record: SensitivityRecord | None = None
@@ -136,7 +139,7 @@ class SensitivityView(View):
         self.bars = plots.make_plot("EFAST indices", "index", None)
         self.bars.setObjectName("sensitivityBars")
         self.bars.getPlotItem().invertY(True)
-        self.bars.addLegend(offset=(-10, -10))
+        plots.add_legend(self.bars.getPlotItem())
         self.table = QTableWidget(0, len(COLUMNS))
         self.table.setObjectName("factorTable")
         self.table.setHorizontalHeaderLabels(list(COLUMNS))
@@ -182,7 +185,7 @@ class SensitivityView(View):
         self.colorbar = pg.ColorBarItem(colorMap=pg.colormap.get("viridis"), interactive=False,
                                         width=12)
         self.colorbar.setImageItem(self.image, insert_in=self.map_plot.getPlotItem())
-        self.colorbar.axis.enableAutoSIPrefix(False)
+        plots.plain_axis(self.colorbar.axis)
         map_box = QGroupBox("Workspace map (one EFAST analysis per grid point)")
         map_layout = QVBoxLayout(map_box)
         map_layout.addLayout(map_controls)
@@ -217,10 +220,21 @@ class SensitivityView(View):
         covariance = tree.get("covariance")
         return model, None if covariance is None else np.asarray(covariance, dtype=float)
 
+    def set_document(self, document: ProjectDocument) -> None:
+        """Another project: nothing of this one's problem or results may stay."""
+        self.setup = None
+        self._setup_token = None
+        self.record = None
+        self.map_record = None
+        self.status.clear()
+        super().set_document(document)
+
     def _new_setup(self) -> None:
         """The factor table of the chosen problem, fresh."""
         name = self._identification_choice()
         n = self.n_box.value()
+        self._setup_token = None if name is None else self.document.result_token(
+            "identifications", name)
         try:
             self.positions_box.setCurrentIndex(self.positions_box.findData(
                 "design" if name is None else "grid"))
@@ -249,9 +263,9 @@ class SensitivityView(View):
                 cells = [
                     name,
                     QTableWidgetItem(factor.distribution),
-                    QTableWidgetItem(_shown(factor.mean)),
-                    QTableWidgetItem(_shown(factor.spread)),
-                    QTableWidgetItem(plots.unit_label(factor.unit)),
+                    QTableWidgetItem(_shown(self.units.value(factor.mean, factor.unit))),
+                    QTableWidgetItem(_shown(self.units.value(factor.spread, factor.unit))),
+                    QTableWidgetItem(self.units.symbol(factor.unit)),
                     QTableWidgetItem("yes" if factor.overridden else ""),
                 ]
                 for column, item in enumerate(cells):
@@ -294,7 +308,9 @@ class SensitivityView(View):
                 except ValueError:
                     raise UserError(f"{eid}: {text!r} is not a number") from None
                 key = "mean" if column == MEAN_COLUMN else "spread"
-                self.setup = self.setup.with_factor(eid, **{key: value})
+                # typed in the unit the table shows
+                unit = self.setup.factor(eid).unit
+                self.setup = self.setup.with_factor(eid, **{key: self.units.to_core(value, unit)})
             else:
                 return
         except UserError as exc:
@@ -305,7 +321,8 @@ class SensitivityView(View):
         self.status.setText("factor table edited: press Run to analyse again")
 
     def set_spread(self, eid: str, spread: float) -> None:
-        """Edit one factor's spread through the table, as the user does."""
+        """Edit one factor's spread through the table, as the user does (in the unit the table
+        shows)."""
         for row in range(self.table.rowCount()):
             cell = self.table.item(row, SPREAD_COLUMN)
             if self._factor_id(row) == eid and cell is not None:
@@ -353,8 +370,7 @@ class SensitivityView(View):
         self.status.setText(f"EFAST {what} running…")
         self.run_task(
             f"sensitivity {what}",
-            lambda progress, cancel: setup.run(model, covariance, map_step, machine,  # type: ignore[arg-type]
-                                               progress, cancel),
+            ProcessCall(setup.run, (model, covariance, map_step, machine)),
             lambda result: self._analysed(result, setup, name),
             on_cancel=lambda: self.status.setText(f"EFAST {what} cancelled"),
         )
@@ -384,6 +400,15 @@ class SensitivityView(View):
             self.map_record = self.record
         if self.setup is None and self.record is not None and self.record.setup is not None:
             self.setup = self.record.setup
+            source = self.setup.identification
+            self._setup_token = None if source is None else self.document.result_token(
+                "identifications", source)
+        if self.setup is not None and self.setup.mode == "identified" and \
+                self._setup_token != self.document.result_token(
+                    "identifications", self.setup.identification or ""):
+            # the identification was run again (or removed): its means and spreads changed
+            self.setup = None
+            self.status.setText("factor table rebuilt from the current identification")
         default = "loop" if "loop" in names else (names[0] if names else "")
         if self.setup is None:
             wanted = default

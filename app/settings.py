@@ -12,8 +12,10 @@ from pathlib import Path
 from typing import Any
 
 from PySide6.QtCore import QSettings
+from volucal.core.display_units import DisplayUnits
 from volucal.core.identify import IdentifyOptions
 from volucal.core.residuals import LoopOptions
+from volucal.core.userror import UserError
 
 ORGANIZATION = "volucal"
 APPLICATION = "volucal"
@@ -106,4 +108,25 @@ def set_last_folder(path: Path) -> None:
     folder = path if path.is_dir() else path.parent
     settings = store()
     settings.setValue(FOLDER_KEY, str(folder))
+    settings.sync()
+
+
+UNITS_KEY = "units/"
+
+
+def display_units() -> DisplayUnits:
+    """The units the views show (View ▸ Units); µm and µrad unless the user chose others."""
+    settings = store()
+    length = str(settings.value(UNITS_KEY + "length", "um"))
+    angle = str(settings.value(UNITS_KEY + "angle", "urad"))
+    try:
+        return DisplayUnits(length, angle)
+    except UserError:  # a settings file edited by hand
+        return DisplayUnits()
+
+
+def set_display_units(units: DisplayUnits) -> None:
+    settings = store()
+    settings.setValue(UNITS_KEY + "length", units.length)
+    settings.setValue(UNITS_KEY + "angle", units.angle)
     settings.sync()

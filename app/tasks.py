@@ -4,7 +4,10 @@ A core step is a plain function that takes an optional ``progress(fraction, mess
 and a :class:`~volucal.core.progress.CancelToken` (DESIGN.md, "Data flow"). :class:`Task` runs one
 such call on its own QThread: the callback, called on the worker thread, is turned into a Qt
 signal (throttled, so that a tight loop cannot flood the event loop) and the result or the error
-comes back as a signal delivered on the GUI thread. The worker never touches a widget.
+comes back as a signal delivered on the GUI thread. The worker never touches a widget. A
+:class:`~volucal.app.engine.ProcessCall` runs in a worker process instead (core code that holds
+Python's interpreter lock would otherwise freeze the window, :mod:`volucal.app.engine`); the
+thread then only waits for its messages.
 
 Results never arrive at a closed widget: every task has an *owner*; when the owner is destroyed
 or its :class:`TaskRunner` is shut down (the owner closed), the task is dropped — its token is
@@ -24,6 +27,9 @@ import shiboken6
 from PySide6.QtCore import QObject, QThread, Signal
 from volucal.core.progress import Cancelled, CancelToken, ProgressCallback
 from volucal.core.userror import UserError
+
+from . import engine
+from .engine import ProcessCall
 
 #: Minimum time between two progress signals of one task (s): 20 updates a second are plenty
 #: for a progress bar and leave the event loop free.
@@ -59,7 +65,10 @@ class _WorkerThread(QThread):
                 self.progressed.emit(float(fraction), str(message))
 
         try:
-            result = self._call(progress, self._token)
+            if isinstance(self._call, ProcessCall):
+                result = engine.run(self._call, progress, self._token)
+            else:
+                result = self._call(progress, self._token)
         except Cancelled:
             self.raised.emit("cancelled", "cancelled by the user")
         except UserError as exc:
@@ -96,6 +105,9 @@ class Task(QObject):
         self.token = CancelToken()
         self.fraction = 0.0
         self.message = ""
+        #: How it ended, for the status bar: "finished", "cancelled", "failed" or
+        #: "internal error" ("" while running).
+        self.outcome = ""
         self._owner = owner
         self._dropped = False
         self._thread = _WorkerThread(call, self.token)
@@ -145,12 +157,14 @@ class Task(QObject):
     def _on_returned(self, result: object) -> None:
         if not self._deliverable():
             return
+        self.outcome = "finished"
         log.info("%s: done", self.title)
         self.succeeded.emit(result)
 
     def _on_raised(self, kind: str, text: str) -> None:
         if not self._deliverable():
             return
+        self.outcome = {"cancelled": "cancelled", "user": "failed"}.get(kind, "internal error")
         if kind == "cancelled":
             log.info("%s: cancelled", self.title)
             self.cancelled.emit()

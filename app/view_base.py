@@ -7,8 +7,10 @@ from typing import Any
 
 from PySide6.QtGui import QCloseEvent, QShowEvent
 from PySide6.QtWidgets import QPushButton, QWidget
+from volucal.core.display_units import DisplayUnits
 from volucal.core.userror import UserError
 
+from . import settings
 from .dialogs import show_bug, show_error
 from .document import ProjectDocument
 from .tasks import CoreCall, Task, TaskRunner
@@ -28,8 +30,14 @@ class View(QWidget):
         super().__init__(parent)
         self.document = document
         self.runner = TaskRunner(self)
+        self.units = settings.display_units()
         self._stale = True
         document.changed.connect(self._document_changed)
+
+    def set_units(self, units: DisplayUnits) -> None:
+        """Show values in other units (View ▸ Units): redraw from the document."""
+        self.units = units
+        self._document_changed()
 
     # ---- the document ----------------------------------------------------------------------
 

@@ -231,7 +231,8 @@ def calibrate(
     result["compensation"] = compensation_report(source, tuple(files), verification)
     if request.project_path is not None:
         report(progress, 0.96, "saving the project")
-        save_project(request.project_path, imported, loop, result, sensitivity_result)
+        save_project(request.project_path, imported, loop, result, sensitivity_result,
+                     loop_options.identify)
     if request.report_path is not None:
         write_json_atomic(request.report_path, result)
     if refused is not None:
@@ -282,6 +283,7 @@ def save_project(
     loop: LoopResult,
     result: Mapping[str, Any],
     sensitivity_result: Any = None,
+    identify_options: Any = None,
 ) -> None:
     """Write (or overwrite) the project with the measurement and every result of the run."""
     from .project import Project
@@ -294,28 +296,13 @@ def save_project(
         imported.raw,
         provenance={line.name: line.provenance() for line in imported.lines},
     )
-    project.put_result("identifications", "main", identification_tree(loop.base))
-    project.put_result("identifications", "loop", identification_tree(loop.final))
-    project.put_result("loops", "main", {"report_json": json.dumps(_loop_part(result))})
-    if "sensitivity" in result:
-        project.put_result(
-            "sensitivity", "main", {"report_json": json.dumps(result["sensitivity"])}
-        )
+    # the identifications with their residuals, every effect tried and the sensitivity arrays:
+    # what the workbench's views draw (result_trees)
+    from .result_trees import store_calibration
+
+    store_calibration(project, loop, identify_options, sensitivity_result)
     project.put_result("compensation", "main", {"report_json": json.dumps(result["compensation"])})
     project.save(path)
-
-
-def _loop_part(result: Mapping[str, Any]) -> dict[str, Any]:
-    keys = (
-        "loop",
-        "effects",
-        "residual_rms_um",
-        "residual_rms_urad",
-        "cv_rms_um",
-        "unexplained",
-        "warnings",
-    )
-    return {k: result[k] for k in keys if k in result}
 
 
 def write_json_atomic(path: Path, content: Mapping[str, Any]) -> None:

@@ -86,7 +86,7 @@ __all__ = [
 ]
 
 FORMAT_VERSION = 1
-RESULT_KINDS = ("identifications", "loops", "sensitivity", "compensation", "thermal")
+RESULT_KINDS = ("identifications", "loops", "sensitivity", "compensation", "thermal", "report")
 UNIT_SUFFIXES = {"_um": "um", "_urad": "urad", "_mm": "mm", "_s": "s", "_c": "degC"}
 _RESERVED = "volucal_"
 

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from .certificate import Certificate
 from .conformance import (
     QUANTITIES,
     Conformance,
@@ -42,83 +43,52 @@ from .conformance import (
     budget_from,
     volumetric_conformance,
 )
+from .display_units import DisplayUnits
 from .errors import AXIS_ERROR_IDS, ERROR_IDS, ERROR_INFO, SQUARENESS_IDS, error_label
 from .identify import UncertaintyBudget
 from .iso230_2 import evaluate, straightness
 from .machine import AXES
 from .measurement import Line
 from .project import Project, error_model_from_tree
+from .remeasurement import compare
+from .report_acceptance import (
+    certificate_section,
+    iso_graphs_section,
+    remeasurement_section,
+    signature_section,
+    tolerance_section,
+    tolerance_summary,
+)
+from .report_blocks import (
+    BarChart,
+    Block,
+    Curve,
+    CurveGrid,
+    IsoGraphs,
+    Paragraph,
+    Section,
+    Signatures,
+    Table,
+)
+from .tolerances import Tolerances
 from .userror import UserError
 
 #: How many errors each sensitivity table and chart shows (by total index).
 TOP_SENSITIVITY = 8
-UNIT_TEXT = {"um": "µm", "urad": "µrad"}
-
-
-# --------------------------------------------------------------------------------------------
-# Content blocks
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Paragraph:
-    """Text; ``kind`` is "body", "note" (smaller) or "verdict" (emphasised)."""
-
-    text: str
-    kind: str = "body"
-
-
-@dataclass(frozen=True)
-class Table:
-    """A table; ``align`` has one letter per column (l, r, c); an empty header makes a
-    two-column key/value list."""
-
-    header: tuple[str, ...]
-    rows: tuple[tuple[str, ...], ...]
-    align: str = ""
-    caption: str = ""
-
-
-@dataclass(frozen=True)
-class Curve:
-    """An error function over its axis stroke with its expanded uncertainty (k = 2)."""
-
-    title: str
-    unit: str
-    axis: str
-    position_mm: tuple[float, ...]
-    value: tuple[float, ...]
-    expanded_uncertainty: tuple[float, ...]
-
-
-@dataclass(frozen=True)
-class CurveGrid:
-    """Error curves laid out ``columns`` per row."""
-
-    curves: tuple[Curve, ...]
-    columns: int = 2
-
-
-@dataclass(frozen=True)
-class BarChart:
-    """Grouped bars: per category one bar per series; ``errors`` (same shape) are ±1 std
-    whiskers, or empty."""
-
-    title: str
-    categories: tuple[str, ...]
-    series: tuple[str, ...]
-    values: tuple[tuple[float, ...], ...]  # [series][category]
-    errors: tuple[tuple[float, ...], ...] = ()
-    y_label: str = ""
-
-
-Block = Paragraph | Table | CurveGrid | BarChart
-
-
-@dataclass(frozen=True)
-class Section:
-    title: str
-    blocks: tuple[Block, ...]
+#: The uncertainty budget's terms (:class:`volucal.core.identify.UncertaintyBudget`): unit and
+#: meaning; standard uncertainties unless said otherwise.
+BUDGET_TERMS = {
+    "laser_ppm": ("ppm", "laser wavelength accuracy (±, rectangular)"),
+    "air_temp_sensor_c": ("°C", "air temperature sensor (±, rectangular)"),
+    "material_temp_sensor_c": ("°C", "material temperature sensor (±, rectangular)"),
+    "expansion_coeff_ppm": ("ppm/°C", "expansion coefficient of the scale (±, rectangular)"),
+    "material_offset_c": ("°C", "typical |material temperature − 20 °C| in the session"),
+    "dead_path_mm": ("mm", "dead path of the laser"),
+    "air_temp_change_c": ("°C", "air temperature change during a line"),
+    "cosine_urad": ("µrad", "beam misalignment angle"),
+    "abbe_mm": ("mm", "Abbe offset of the optics not accounted for"),
+    "straightness_pct": ("%", "straightness optics accuracy, of the reading"),
+}
 
 
 @dataclass(frozen=True)
@@ -160,6 +130,10 @@ class ReportContent:
                     out += [" ".join(row) for row in block.rows]
                 elif isinstance(block, CurveGrid):
                     out += [c.title for c in block.curves]
+                elif isinstance(block, IsoGraphs):
+                    out += [g for graph in block.graphs for g in (graph.title, graph.caption)]
+                elif isinstance(block, Signatures):
+                    out += [f"{role}: {name}" for role, name in block.roles]
                 else:
                     out.append(block.title)
         return "\n".join(t for t in out if t)
@@ -174,6 +148,11 @@ class ReportRequest:
     report_json : the run's report.json, for the verified rates (default:
         ``<project folder>/report.json`` when it exists and belongs to this project).
     tolerance_um, tolerance_on : the conformance decision (``accuracy`` or ``volumetric``).
+    certificate : fields that replace those the project keeps (``/report/certificate``, over
+        what the logs say).
+    tolerances : the ISO 230-2 limits per axis (default: those the project keeps).
+    remeasurement_path : a project of the same lines measured again on the compensated machine.
+    units : the units deviations and angles are shown in.
     """
 
     project_path: Path
@@ -181,6 +160,10 @@ class ReportRequest:
     report_json: Path | None = None
     tolerance_um: float | None = None
     tolerance_on: str = "accuracy"
+    certificate: Certificate | None = None
+    tolerances: Tolerances | None = None
+    remeasurement_path: Path | None = None
+    units: DisplayUnits = field(default_factory=DisplayUnits)
 
 
 # --------------------------------------------------------------------------------------------
@@ -216,26 +199,48 @@ def build_report(request: ReportRequest) -> ReportContent:
                                                  request.tolerance_um)
     compensation_dir = request.compensation_dir or results.compensation_dir(path)
     verification, verification_source = _verification(results, path, request.report_json)
+    certificate = Certificate.of_project(project)
+    if request.certificate is not None:
+        certificate = certificate.with_values(**request.certificate.to_json())
+    if not certificate.get("issued"):  # issued when written, unless the user dated it
+        certificate = certificate.with_values(issued=datetime.now(UTC).strftime("%Y-%m-%d"))
+    tolerances = (request.tolerances if request.tolerances is not None
+                  else Tolerances.of_project(project))
+    comparison = None
+    if request.remeasurement_path is not None:
+        again = Project.open(request.remeasurement_path)
+        if not again.lines:
+            raise UserError(f"{request.remeasurement_path}: the re-measurement has no lines")
+        comparison = compare(measurement.lines, again.measurement().lines)
+    units = request.units
     sources = {
         "project": str(path),
         "project_sha256": _sha256_file(path),
         "compensation_dir": str(compensation_dir) if compensation_dir else "",
         "verification": verification_source,
+        "remeasurement": str(request.remeasurement_path or ""),
+        "units": f"{units.symbol('um')}, {units.symbol('urad')}",
     }
+    tolerance_text = tolerance_summary(measurement.lines, tolerances, budget)
     sections = [
-        _summary(project, results, conformance, verification),
+        certificate_section(certificate),
+        _summary(project, results, conformance, verification, tolerance_text),
         _machine(project),
         _plan(project, measurement.lines, results),
         _traceability(project, path, measurement.lines),
-        _iso230_2(measurement.lines),
-        _errors(results),
+        _iso230_2(measurement.lines, units),
+        iso_graphs_section(measurement.lines, units),
+        tolerance_section(measurement.lines, tolerances, budget, units),
+        _errors(results, units),
         _loop(results),
         _sensitivity(results),
         _compensation(results, compensation_dir, verification, verification_source),
+        remeasurement_section(comparison, Path(request.remeasurement_path or "").name, units),
         _uncertainty(project, budget, results),
     ]
     if conformance is not None:
         sections.append(_conformance(conformance))
+    sections.append(signature_section(certificate))
     return ReportContent(
         title="Calibration report",
         subtitle=f"{project.machine.name} — volucal {__version__}",
@@ -244,6 +249,12 @@ def build_report(request: ReportRequest) -> ReportContent:
         conformance=conformance,
         sources=sources,
     )
+
+
+def default_compensation_dir(project: Project, project_path: Path) -> Path | None:
+    """Where the compensation files of the project are expected: the folder the workbench
+    recorded for its last export, else ``compensation`` beside the project."""
+    return _Results(project).compensation_dir(Path(project_path))
 
 
 class _Results:
@@ -337,7 +348,7 @@ def _verification(results: _Results, project_path: Path,
 
 
 def _summary(project: Project, results: _Results, conformance: Conformance | None,
-             verification: Mapping[str, Any] | None) -> Section:
+             verification: Mapping[str, Any] | None, tolerances: str = "") -> Section:
     machine = project.machine
     assert machine is not None
     readings = sum(int(np.isfinite(s.corrected.deviations).sum()) for s in project.lines.values())
@@ -371,6 +382,8 @@ def _summary(project: Project, results: _Results, conformance: Conformance | Non
                    key=lambda kv: np.mean(list(kv[1]["remeasured"]["rms_percent"].values())))
         pairs.append(("Verified compensation rate (re-measured, RMS)",
                       f"{best[0]}: " + _xyz(best[1]["remeasured"]["rms_percent"], "%")))
+    if tolerances:
+        pairs.append(("Tolerances per axis (ISO 230-2)", tolerances))
     if conformance is not None:
         pairs.append(("Conformance (ISO 14253-1)",
                       f"{conformance.verdict}: {conformance.quantity}, "
@@ -404,7 +417,8 @@ def _plan(project: Project, lines: Sequence[Line], results: _Results) -> Section
         ))
     blocks: list[Block] = [
         Paragraph(f"{len(lines)} lines in session order. Plan file: "
-                  f"{project.plan_path or '(not recorded)'}. A line reads at start + target · "
+                  f"{Path(project.plan_path).name if project.plan_path else '(not recorded)'}. "
+                  "A line reads at start + target · "
                   "direction; the reflector is the optics' offset from the spindle gauge point."),
         Table(("line", "quantity", "start mm", "direction", "sensitive", "reflector mm",
                "targets", "runs ↑/↓"), tuple(rows), "llrrrrrr"),
@@ -462,7 +476,7 @@ def _traceability(project: Project, path: Path, lines: Sequence[Line]) -> Sectio
                     for c in [*s.provenance.get("corrections", []),
                               *s.provenance.get("notes", [])]})
     pairs = [
-        ("Project file", f"{path} (SHA-256 {_sha256_file(path)})"),
+        ("Project file", f"{path.name} (SHA-256 {_sha256_file(path)})"),
         ("Project created / modified", f"{project.created} / {project.modified}"),
         ("Written by", project.creator),
         ("Instrument (log format)", ", ".join(sorted(formats - {""})) or "–"),
@@ -485,7 +499,7 @@ def _traceability(project: Project, path: Path, lines: Sequence[Line]) -> Sectio
     return Section("Traceability", tuple(blocks))
 
 
-def _iso230_2(lines: Sequence[Line]) -> Section:
+def _iso230_2(lines: Sequence[Line], units: DisplayUnits) -> Section:
     rows = []
     flat = []
     for line in lines:
@@ -493,31 +507,33 @@ def _iso230_2(lines: Sequence[Line]) -> Section:
             mean = np.nanmean(line.data.deviations, axis=0)
             ls, ep = straightness(line.data.targets_mm, mean)
             flat.append((line.name, _vec(line.spec.direction, 3), _vec(line.spec.sensitive, 3),
-                         _f(ls), _f(ep)))
+                         units.text(ls, "um", False), units.text(ep, "um", False)))
             continue
         r = evaluate(line.data, line.spec.unit)
-        rows.append((line.name, UNIT_TEXT[r.unit], f"{r.runs_up}/{r.runs_down}", _f(r.A_um),
-                     _f(r.A_up_um), _f(r.A_down_um), _f(r.E_um), _f(r.R_um), _f(r.B_um),
-                     _f(r.mean_reversal_um), _f(r.M_um)))
+        rows.append((line.name, units.symbol(r.unit), f"{r.runs_up}/{r.runs_down}",
+                     *(units.text(getattr(r, f"{key}_um"), r.unit, False) for key in (
+                         "A", "A_up", "A_down", "E", "R", "B", "mean_reversal", "M"))))
     blocks: list[Block] = [
         Paragraph("Positioning values of ISO 230-2 (clause 2) from the corrected readings of "
                   "every linear and angular line: accuracy A (bidirectional, ↑, ↓), systematic "
                   "positioning error E, repeatability R, reversal B and mean reversal B̄, mean "
-                  "bidirectional positioning error M. Angular lines in µrad."),
+                  f"bidirectional positioning error M. Deviations in {units.symbol('um')}, "
+                  f"angular lines in {units.symbol('urad')}."),
         Table(("line", "unit", "runs ↑/↓", "A", "A↑", "A↓", "E", "R", "B", "B̄", "M"),
               tuple(rows), "llrrrrrrrrr"),
     ]
     if flat:
         blocks += [
             Paragraph("Straightness (ISO 230-1) of the mean profile of each straightness line, "
-                      "about the least-squares and the end-point reference lines (µm)."),
-            Table(("line", "direction", "sensitive", "least squares µm", "end point µm"),
+                      "about the least-squares and the end-point reference lines."),
+            Table(("line", "direction", "sensitive", f"least squares {units.symbol('um')}",
+                   f"end point {units.symbol('um')}"),
                   tuple(flat), "lrrrr"),
         ]
     return Section("Positioning and straightness (ISO 230-2, ISO 230-1)", tuple(blocks))
 
 
-def _errors(results: _Results) -> Section:
+def _errors(results: _Results, units: DisplayUnits) -> Section:
     parameters = results.parameters
     if not parameters:
         return Section("Identified errors", ())
@@ -528,19 +544,20 @@ def _errors(results: _Results) -> Section:
         std = np.asarray(entry["std"], dtype=float)
         curves.append(Curve(
             title=f"{error_label(eid)} — {info.kind}",
-            unit=UNIT_TEXT[info.unit],
+            unit=units.symbol(info.unit),
             axis=str(info.axis),
             position_mm=tuple(float(v) for v in entry["position_mm"]),
-            value=tuple(float(v) for v in entry["value"]),
-            expanded_uncertainty=tuple(float(v) for v in 2.0 * std),
+            value=tuple(float(v) for v in units.convert(entry["value"], info.unit)),
+            expanded_uncertainty=tuple(float(v) for v in units.convert(2.0 * std, info.unit)),
         ))
     rows = []
     for eid in SQUARENESS_IDS:
         entry = parameters[eid]
         value = float(entry["value"][0])
         u = float(entry["std"][0])
-        rows.append((error_label(eid), ERROR_INFO[eid].description, _f(value, 2),
-                     _f(2 * u, 2), _f(value * 0.206265, 3)))
+        rows.append((error_label(eid), ERROR_INFO[eid].description,
+                     units.text(value, "urad", False), units.text(2 * u, "urad", False),
+                     DisplayUnits(angle="arcsec").text(value, "urad", False)))
     name = results.identification_name()
     return Section("Identified errors", (
         Paragraph(f"The 21 geometric errors (ISO 230-1 ids, the paper's symbols in brackets) of "
@@ -548,7 +565,8 @@ def _errors(results: _Results) -> Section:
                   "expanded uncertainty U (k = 2): the statistical covariance of the fit and, for "
                   "positioning errors, the set-up budget. Zero at the reference position."),
         CurveGrid(tuple(curves), columns=3),
-        Table(("squareness", "meaning", "value µrad", "U µrad (k = 2)", "value arcsec"),
+        Table(("squareness", "meaning", f"value {units.symbol('urad')}",
+               f"U {units.symbol('urad')} (k = 2)", "value arcsec"),
               tuple(rows), "llrrr"),
     ))
 
@@ -664,7 +682,7 @@ def _compensation(results: _Results, folder: Path | None,
             ("method", "re-measured RMS X %", "Y %", "Z %", "range X %", "Y %", "Z %",
              "true grid RMS X %", "Y %", "Z %"), tuple(rows), "lrrrrrrrrr",
             caption="Verified compensation rates: the plan measured again on the compensated "
-                    f"machine (source: {verification_source})."))
+                    f"machine (source: {_source_name(verification_source)})."))
     else:
         blocks.append(Paragraph("No verification measurement of the compensated machine is "
                                 "recorded; the rates above are predictions.", "note"))
@@ -675,20 +693,21 @@ def _compensation(results: _Results, folder: Path | None,
 def _files(names: Sequence[str], folder: Path | None) -> list[Block]:
     if folder is None or not folder.is_dir():
         listed = ", ".join(dict.fromkeys(names)) or "none"
-        return [Paragraph(f"Compensation files of the run: {listed}. Their folder was not found "
-                          "(give it with --compensation DIR), so no checksum is given.", "note")]
+        return [Paragraph(f"Compensation files of the run: {listed}. Their folder was not at "
+                          "hand when this report was written, so no checksum is given.", "note")]
     rows = []
     for file in sorted(p for p in folder.rglob("*") if p.is_file()):
         rows.append((str(file.relative_to(folder)), f"{file.stat().st_size}",
                      _sha256_file(file)))
     return [Table(("file", "bytes", "SHA-256"), tuple(rows), "lrl",
-                  caption=f"Compensation files in {folder}, with the checksums to compare with "
-                          "what the controller loaded.")]
+                  caption=f"Compensation files (folder '{folder.name}'), with the checksums to "
+                          "compare with what the controller loaded.")]
 
 
 def _uncertainty(project: Project, budget: UncertaintyBudget, results: _Results) -> Section:
-    rows = tuple((name, _f(float(getattr(budget, name)), 3),
-                  "plan" if name in project.uncertainty else "default")
+    rows = tuple((name, _f(float(getattr(budget, name)), 3), BUDGET_TERMS.get(name, ("", ""))[0],
+                  BUDGET_TERMS.get(name, ("", ""))[1],
+                  "plan" if name in project.uncertainty else "default (not in the plan)")
                  for name in budget.__dataclass_fields__)
     sigma = ""
     tree = results.identification_tree()
@@ -704,8 +723,9 @@ def _uncertainty(project: Project, budget: UncertaintyBudget, results: _Results)
             "the set-up budget below, which acts on positioning errors as a scale error over the "
             "distance from the reference. Rectangular distributions are divided by √3. Combined "
             f"scale uncertainty: {_f(budget.scale_ppm(), 3)} ppm." + sigma),
-        Table(("budget term", "value", "from"), rows, "lrl",
-              caption="Set-up budget (the plan's [uncertainty] table overrides the defaults)."),
+        Table(("budget term", "value", "unit", "meaning", "from"), rows, "lrlll",
+              caption="Set-up budget: the plan's [uncertainty] table; the terms it does not give "
+                      "take volucal's defaults."),
     ))
 
 
@@ -727,6 +747,11 @@ def _conformance(c: Conformance) -> Section:
 # --------------------------------------------------------------------------------------------
 # Formatting
 # --------------------------------------------------------------------------------------------
+
+
+def _source_name(source: str) -> str:
+    """Where verified rates came from, without a folder path: "project" or the file's name."""
+    return source if source in ("", "project") else f"the run's {Path(source).name}"
 
 
 def _f(value: Any, digits: int = 2) -> str:

@@ -13,6 +13,12 @@ from pathlib import Path
 from volucal.core.userror import UserError
 
 from . import installed
+from .qt_libraries import (
+    install_message,
+    missing_from_import_error,
+    missing_xcb_libraries,
+    uses_xcb,
+)
 
 GUI_EXTRA = "the GUI needs the gui extra: pip install 'volucal[gui]'"
 
@@ -25,9 +31,20 @@ def handle(args: argparse.Namespace) -> int:
         raise UserError(f"{project}: no such project file")
     # pyqtgraph must use the binding the workbench is written for, never guess one.
     os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
+    if uses_xcb():
+        if not (os.environ.get("DISPLAY") or os.environ.get("QT_QPA_PLATFORM")):
+            raise UserError("no display to open the workbench on (DISPLAY is not set); run it "
+                            "in a desktop session, or headless with QT_QPA_PLATFORM=offscreen")
+        # Qt aborts the process (no exception) when an xcb library is missing: check first
+        missing = missing_xcb_libraries()
+        if missing:
+            raise UserError(install_message(missing))
     try:
         from volucal.app.main import run
     except ImportError as exc:  # a broken Qt installation (missing system libraries)
+        libraries = missing_from_import_error(str(exc))
+        if libraries:
+            raise UserError(install_message(libraries)) from None
         raise UserError(f"{GUI_EXTRA} ({exc})") from None
     return run(project, demo=not args.empty, smoke=args.smoke)
 

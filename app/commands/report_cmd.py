@@ -14,7 +14,10 @@ import sys
 from pathlib import Path
 
 from volucal.core.calibrate import _jsonable
+from volucal.core.certificate import FIELDS, KEYS, Certificate
 from volucal.core.conformance import QUANTITIES
+from volucal.core.display_units import ANGLE_UNITS, LENGTH_UNITS, DisplayUnits
+from volucal.core.tolerances import Tolerances
 from volucal.core.userror import UserError
 
 from . import installed
@@ -33,6 +36,8 @@ def handle(args: argparse.Namespace) -> int:
         from volucal.app.report import write_report
     except ImportError as exc:  # a broken Qt installation (missing system libraries)
         raise UserError(f"{QT_MISSING} ({exc})") from None
+    certificate = Certificate({key: getattr(args, key) for key in KEYS
+                               if getattr(args, key) is not None})
     written = write_report(
         args.project,
         args.output,
@@ -40,6 +45,10 @@ def handle(args: argparse.Namespace) -> int:
         tolerance_on=args.tolerance_on,
         compensation_dir=args.compensation,
         report_json=args.report_json,
+        certificate=certificate,
+        tolerances=_tolerances(args.axis_tolerance) if args.axis_tolerance else None,
+        remeasurement=args.remeasurement,
+        units=DisplayUnits(args.length_unit, args.angle_unit),
     )
     conformance = written.content.conformance
     if args.json:
@@ -56,6 +65,21 @@ def handle(args: argparse.Namespace) -> int:
     return 0
 
 
+def _tolerances(items: list[str]) -> Tolerances:
+    """``AXIS:VALUE=LIMIT`` items (µm), e.g. ``X:A=12``, as tolerances per axis."""
+    limits: dict[str, dict[str, float]] = {}
+    for item in items:
+        where, _, text = item.partition("=")
+        axis, _, quantity = where.partition(":")
+        try:
+            value = float(text)
+        except ValueError:
+            raise UserError(f"--axis-tolerance {item}: expected AXIS:VALUE=LIMIT in µm, e.g. "
+                            "X:A=12") from None
+        limits.setdefault(axis.strip().upper(), {})[quantity.strip().upper()] = value
+    return Tolerances(limits)
+
+
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     parser = sub.add_parser(
         "report",
@@ -65,8 +89,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
             "plan, ISO 230-2 values per line, the identified errors with their uncertainty, the "
             "closed loop's steps, the sensitivity ranking, the compensation files with their "
             "checksums and the predicted and verified rates, traceability from the logs, the "
-            "uncertainty statement and, with --tolerance-um, a conformance decision in the "
-            "manner of ISO 14253-1. Needs the gui extra (Qt writes the PDF)."
+            "uncertainty statement, the certificate fields and a signature block; the ISO 230-2 "
+            "graph of each axis and, with tolerances per axis, their pass/fail; with "
+            "--remeasurement the compensated machine measured again; with --tolerance-um, a "
+            "conformance decision in the manner of ISO 14253-1. Needs the gui extra (Qt writes "
+            "the PDF)."
         ),
     )
     parser.add_argument("project", type=Path, metavar="PROJECT.h5")
@@ -86,6 +113,24 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                         help="the run's report.json, for verified compensation rates the "
                              "project does not hold (default: report.json beside the project, "
                              "when it is of the same run)")
+    parser.add_argument("--axis-tolerance", action="append", metavar="AXIS:VALUE=LIMIT",
+                        help="an ISO 230-2 limit of an axis in µm (VALUE one of A, E, R, B, M), "
+                             "e.g. X:A=12; repeat for more; replaces the limits kept in the "
+                             "project (the workbench's Edit ▸ Tolerances)")
+    parser.add_argument("--remeasurement", type=Path, metavar="AFTER.h5",
+                        help="a project of the same lines measured again on the compensated "
+                             "machine: its ISO 230-2 values and compensation rates beside the "
+                             "original")
+    parser.add_argument("--length-unit", choices=tuple(LENGTH_UNITS), default="um",
+                        help="unit of the deviations shown (default: %(default)s)")
+    parser.add_argument("--angle-unit", choices=tuple(ANGLE_UNITS), default="urad",
+                        help="unit of the angles shown (default: %(default)s)")
+    certificate = parser.add_argument_group(
+        "certificate", "fields of the certificate; each replaces what the project keeps (the "
+        "workbench's report dialog) or what the logs say")
+    for key, label in FIELDS:
+        certificate.add_argument(f"--{key.replace('_', '-')}", dest=key, metavar="TEXT",
+                                 help=label.lower())
     parser.add_argument("--json", action="store_true",
                         help="print the report's content (every section, table and curve, the "
                              "sources and the conformance decision) as JSON")

@@ -119,6 +119,56 @@ def small_project(small_project_file, tmp_path) -> Path:
     return path
 
 
+@pytest.fixture(scope="session")
+def small_remeasured_file(small_project_file, tmp_path_factory) -> Path:
+    """The small session's lines measured again on the virtual machine compensated with the
+    small project's final model (direction-free): the "after" of a before/after comparison."""
+    from volucal.core.compensation import ModelSource
+    from volucal.core.project import error_model_from_tree
+
+    project = Project.open(small_project_file)
+    model = error_model_from_tree(project.result("identifications", "loop")["model"],
+                                  project.machine)
+    source = ModelSource(model)
+    vm = dataclasses.replace(demo_machine(), laser=LaserSetup(noise_um=0.15,
+                                                              runs_per_direction=2))
+    lines = plans.layout(SMALL_LAYOUT, vm.machine, SMALL_STEP_MM, 2.0)
+    after = vm.measure(lines, realisation=3,
+                       compensation=lambda q, a: q - source.error_um(q, a) / 1000.0)
+    folder = tmp_path_factory.mktemp("small_remeasured")
+    imported = import_plan(load_plan(write_session(after, folder)))
+    again = Project.create(imported.measurement.machine)
+    again.add_lines(imported.plan, imported.measurement, imported.source_bytes, imported.raw,
+                    provenance={line.name: line.provenance() for line in imported.lines})
+    return again.save(folder / "after.h5")
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory):
+    """`volucal demo` in a folder: demo.h5 (as calibrate writes it), report.json (with the rates
+    verified on the virtual machine) and compensation/ — about a minute, once per session."""
+    from volucal.core.calibrate import CalibrationRequest, calibrate, write_json_atomic
+    from volucal.core.commands.demo_cmd import verify_demo
+    from volucal.core.resources import demo_plan
+
+    folder = tmp_path_factory.mktemp("demo")
+    # fewer EFAST samples than the demo's 1400 per factor: the tests only lay them out
+    result = calibrate(CalibrationRequest(
+        demo_plan(), project_path=folder / "demo.h5", report_path=folder / "report.json",
+        export_dir=folder / "compensation", sensitivity_n=400))
+    verify_demo(result)
+    write_json_atomic(folder / "report.json", result.report)
+    return folder
+
+
+@pytest.fixture
+def demo_project(demo_run, tmp_path) -> Path:
+    """A copy of the demo project this test may change."""
+    path = tmp_path / "demo.h5"
+    shutil.copyfile(demo_run / "demo.h5", path)
+    return path
+
+
 @pytest.fixture
 def document(small_project) -> ProjectDocument:
     return ProjectDocument(Project.open(small_project))

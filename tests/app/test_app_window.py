@@ -207,8 +207,59 @@ def test_a_failing_save_shows_the_message(qtbot, window, tmp_path):
     dialogs[0].close()
 
 
-def test_the_report_action_writes_the_pdf(qtbot, window, wait_idle, tmp_path):
+def test_the_report_action_writes_the_pdf(qtbot, window, wait_idle, tmp_path, monkeypatch):
+    """File ▸ Report: unsaved changes are saved after asking, the dialog writes the PDF."""
+    asked = []
+    monkeypatch.setattr(QMessageBox, "question",
+                        lambda parent, title, text, *a: asked.append(text)
+                        or QMessageBox.StandardButton.Save)
+    window.show_view("machine").name.setText("VMC-400 bay 3")
+    window.views["machine"].apply()
+    assert not window.document.is_clean
     pdf = tmp_path / "report.pdf"
-    window.write_report(pdf)
+    dialog = window.write_report(pdf)
+    assert asked and "Save the project now?" in asked[0] and window.document.is_clean
+    dialog.accept()
     wait_idle(window)
     assert pdf.is_file() and pdf.read_bytes().startswith(b"%PDF")
+    assert window.status_text.text().startswith("report written: report.pdf")
+
+
+def test_the_report_is_not_written_when_the_user_does_not_save(qtbot, window, tmp_path,
+                                                                 monkeypatch):
+    monkeypatch.setattr(QMessageBox, "question",
+                        lambda *a: QMessageBox.StandardButton.Cancel)
+    window.show_view("machine").name.setText("changed")
+    window.views["machine"].apply()
+    assert window.write_report(tmp_path / "report.pdf") is None
+    assert not window.document.is_clean and not (tmp_path / "report.pdf").exists()
+
+
+def test_missing_xcb_libraries_are_named_with_the_apt_line(qtbot, monkeypatch, capsys):
+    from volucal.app.commands import gui_cmd, qt_libraries
+
+    ldd = ("\tlinux-vdso.so.1 (0x00007ffd)\n"
+           "\tlibxcb-icccm.so.4 => not found\n"
+           "\tlibxcb-keysyms.so.1 => not found\n"
+           "\tlibxcb.so.1 => /lib/x86_64-linux-gnu/libxcb.so.1 (0x00007f)\n")
+    assert qt_libraries.missing_from_ldd(ldd) == ["libxcb-icccm.so.4", "libxcb-keysyms.so.1"]
+    message = qt_libraries.install_message(["libxcb-icccm.so.4", "libxcb-keysyms.so.1",
+                                            "libxcb-cursor.so.0"])
+    assert "sudo apt-get install libxcb-icccm4 libxcb-keysyms1 libxcb-cursor0" in message
+    assert qt_libraries.packages_for(["libfoo-bar.so.3"]) == ["libfoo-bar3"]
+    assert qt_libraries.missing_from_import_error(
+        "libEGL.so.1: cannot open shared object file: No such file or directory") == [
+        "libEGL.so.1"]
+    # on this machine the xcb platform's libraries are all there (or the check names them)
+    missing = qt_libraries.missing_xcb_libraries()
+    assert all(name.startswith("lib") for name in missing)
+    # the command checks before Qt starts, and says what to type
+    monkeypatch.setenv("QT_QPA_PLATFORM", "xcb")
+    monkeypatch.setenv("DISPLAY", ":99")
+    monkeypatch.setattr(gui_cmd, "missing_xcb_libraries",
+                        lambda: ["libxcb-icccm.so.4", "libxcb-keysyms.so.1"])
+    assert main(["gui", "--empty"]) == 1
+    err = capsys.readouterr().err
+    assert "sudo apt-get install libxcb-icccm4 libxcb-keysyms1" in err
+    assert qt_libraries.uses_xcb({"QT_QPA_PLATFORM": "offscreen"}) is False
+    assert qt_libraries.uses_xcb({"DISPLAY": ":0"}) is True

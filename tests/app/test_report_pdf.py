@@ -1,8 +1,8 @@
 """The calibration report of the demo, rendered to PDF and read back with poppler's pdftotext and
 pdfinfo (Debian poppler-utils; .ci/install-report-tools.sh installs them).
 
-The demo pipeline runs once for the module (volucal.core.calibrate, then the demo's verification
-on the virtual machine, as ``volucal demo`` does), which takes about a minute.
+The demo pipeline runs once for the session (the ``demo_run`` fixture: volucal.core.calibrate, then
+the demo's verification on the virtual machine, as ``volucal demo`` does), about a minute.
 """
 
 import hashlib
@@ -12,33 +12,18 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 from volucal.app.report import write_report
 from volucal.core import cli
-from volucal.core.calibrate import CalibrationRequest, calibrate, write_json_atomic
-from volucal.core.commands.demo_cmd import verify_demo
 from volucal.core.conformance import CONFORMS, DOES_NOT_CONFORM, NO_DECISION, decide
 from volucal.core.errors import ERROR_IDS
 from volucal.core.identify import UncertaintyBudget
 from volucal.core.iso230_2 import evaluate
 from volucal.core.project import Project
-from volucal.core.resources import demo_plan
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 TOOLS = ("pdftotext", "pdfinfo")
-
-
-@pytest.fixture(scope="module")
-def demo_run(tmp_path_factory):
-    """demo.h5, report.json (with the verified rates) and compensation/ in one folder."""
-    folder = tmp_path_factory.mktemp("demo")
-    # fewer EFAST samples than the demo's 1400 per factor: the report only lays them out
-    result = calibrate(CalibrationRequest(
-        demo_plan(), project_path=folder / "demo.h5", report_path=folder / "report.json",
-        export_dir=folder / "compensation", sensitivity_n=400))
-    verify_demo(result)
-    write_json_atomic(folder / "report.json", result.report)
-    return folder
 
 
 @pytest.fixture(scope="module")
@@ -172,3 +157,102 @@ def test_report_of_a_workbench_project(small_project, poppler, tmp_path):
         assert title in text
     assert "No compensation was computed." in text
     assert "Conformance" not in text  # no tolerance given
+
+
+def page_images(pdf: Path, folder: Path, dpi: int = 40) -> list[np.ndarray]:
+    """Every page rendered by poppler's pdftoppm, as RGB arrays."""
+    from PySide6.QtGui import QImage
+
+    subprocess.run(["pdftoppm", "-r", str(dpi), "-png", str(pdf), str(folder / "page")],
+                   check=True, capture_output=True)
+    images = []
+    for path in sorted(folder.glob("page-*.png")):
+        image = QImage(str(path)).convertToFormat(QImage.Format.Format_RGB888)
+        raw = np.frombuffer(image.constBits(), np.uint8, image.bytesPerLine() * image.height())
+        rows = raw.reshape(image.height(), image.bytesPerLine())[:, :3 * image.width()]
+        images.append(rows.reshape(image.height(), image.width(), 3).copy())
+    return images
+
+
+def coloured(image: np.ndarray, colour: str, tolerance: int = 40) -> int:
+    """Pixels near ``colour`` (#rrggbb)."""
+    rgb = np.array([int(colour[k:k + 2], 16) for k in (1, 3, 5)])
+    return int(np.sum(np.all(np.abs(image.astype(int) - rgb) < tolerance, axis=-1)))
+
+
+def test_every_page_has_content_where_it_should(demo_run, poppler, tmp_path):
+    """Rendered to pictures: no page is empty, the text block of each page is inked, the ISO
+    230-2 graphs draw both directions in their colours, the last page has the signature
+    block; the words a user reads carry no command-line options and no folder paths."""
+    from volucal.core.certificate import Certificate
+    from volucal.core.tolerances import Tolerances
+
+    pdf = tmp_path / "report.pdf"
+    written = write_report(
+        demo_run / "demo.h5", pdf, tolerance_um=25.0,
+        certificate=Certificate({"customer": "ACME Tooling", "certificate_number": "C-17",
+                                 "approver": "J. Metrologist"}),
+        tolerances=Tolerances({"X": {"A": 20.0, "E": 15.0}, "Z": {"R": 2.0}}))
+    images = page_images(pdf, tmp_path)
+    assert len(images) == written.pages == pdf_pages(pdf)
+    for number, image in enumerate(images, start=1):
+        height, width, _ = image.shape
+        ink = np.any(image < 200, axis=-1)
+        # margins are white; the text area (without the footer) is inked top to bottom
+        assert ink[: int(0.04 * height)].sum() == 0, number
+        body = ink[int(0.06 * height): int(0.90 * height), int(0.08 * width): int(0.92 * width)]
+        assert body.mean() > 0.01, f"page {number} is (nearly) empty"
+        assert ink[int(0.93 * height): int(0.97 * height)].sum() > 0, f"page {number}: footer"
+    text = pdf_text(pdf)
+    pages = text.split("\f")
+    graphs = [k for k, page in enumerate(pages) if "Axis X: positioning deviation" in page]
+    assert graphs, "no ISO 230-2 graph of axis X"
+    forward, backward = "#457b9d", "#e63946"  # the report's series colours
+    assert coloured(images[graphs[0]], forward) > 60
+    assert coloured(images[graphs[0]], backward) > 60
+    assert "Signatures" in pages[-1] or "Signatures" in pages[-2]
+    assert "Calibrated by" in text and "Approved by" in text and "J. Metrologist" in text
+    assert "ACME Tooling" in text and "C-17" in text
+    assert "Result: axis X: fail" in " ".join(text.split())
+    assert "--" not in text, "command-line wording in the report"
+    for folder in (str(demo_run), "/tmp", "/home", str(Path.home())):
+        assert folder not in text, f"a path ({folder}) in the report"
+
+
+def test_budget_terms_from_the_plan_are_marked_as_such(small_plan, poppler, tmp_path):
+    """A plan with an [uncertainty] table: its terms are "plan", the others "default"."""
+    import dataclasses as dc
+
+    from volucal.core import plans
+    from volucal.core.io.plan import import_plan, load_plan
+    from volucal.core.simulate import LaserSetup, demo_machine, write_session
+
+    vm = dc.replace(demo_machine(), laser=LaserSetup(noise_um=0.15, runs_per_direction=2))
+    measured = vm.measure(plans.layout("nine-line", vm.machine, 20.0, 2.0))
+    plan = write_session(measured, tmp_path / "session",
+                         uncertainty={"laser_ppm": 0.2, "dead_path_mm": 35.0})
+    imported = import_plan(load_plan(plan))
+    project = Project.create(imported.measurement.machine)
+    project.add_lines(imported.plan, imported.measurement, imported.source_bytes, imported.raw)
+    path = project.save(tmp_path / "budget.h5")
+    pdf = tmp_path / "budget.pdf"
+    write_report(path, pdf)
+    rows = {line.split()[0]: line for line in pdf_text(pdf).splitlines()
+            if line.strip() and line.split()[0] in ("laser_ppm", "dead_path_mm", "cosine_urad")}
+    assert "plan" in rows["laser_ppm"] and "0.200" in rows["laser_ppm"]
+    assert "plan" in rows["dead_path_mm"] and "35.000" in rows["dead_path_mm"]
+    assert "default" in rows["cosine_urad"]
+
+
+def test_report_values_follow_the_chosen_units(demo_run, poppler, tmp_path):
+    from volucal.core.display_units import DisplayUnits
+
+    pdf = tmp_path / "mm.pdf"
+    write_report(demo_run / "demo.h5", pdf, units=DisplayUnits("mm", "arcsec"))
+    text = pdf_text(pdf)
+    project = Project.open(demo_run / "demo.h5")
+    line = project.lines["x_linear"]
+    a_um = evaluate(line.corrected, "um").A_um
+    row = next(r for r in text.splitlines() if r.strip().startswith("x_linear ") and " mm " in r)
+    assert f"{a_um / 1000:.6f}" in row
+    assert "value arcsec" in text and "deviation (mm)" in text

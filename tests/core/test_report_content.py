@@ -54,9 +54,10 @@ def test_iso_230_2_table_has_each_positioning_line_and_straightness_apart(projec
     rows = {row[0]: row for row in positioning.rows}
     assert set(rows) == {"z_linear", "z_iso", "x_y0_z0", "x_pitch_hand"}
     expected = evaluate(stored.lines["z_iso"].corrected)
-    assert rows["z_iso"][3] == f"{expected.A_um:.2f}"
-    assert rows["z_iso"][7] == f"{expected.R_um:.2f}"
-    assert rows["z_linear"][3] == "–"  # one run each way: no standard deviation, no A
+    # in the report's units (µm by default), to the tenth of a micrometre's hundredth
+    assert rows["z_iso"][3] == f"{expected.A_um:.3f}"
+    assert rows["z_iso"][7] == f"{expected.R_um:.3f}"
+    assert rows["z_linear"][3] == "—"  # one run each way: no standard deviation, no A
     assert rows["x_pitch_hand"][1] == "µrad"
     assert [row[0] for row in straight.rows] == ["y_straightness_x"]
 
@@ -78,7 +79,9 @@ def test_conformance_is_added_only_with_a_tolerance(project):
     content = build_report(ReportRequest(project, tolerance_um=100.0))
     assert content.conformance is not None
     assert content.conformance.quantity == "accuracy"
-    assert content.sections[-1].title == "Conformance (ISO 14253-1)"
+    # the decision closes the report, before the signatures
+    assert [s.title for s in content.sections][-2:] == ["Conformance (ISO 14253-1)",
+                                                         "Signatures"]
     with pytest.raises(UserError, match="no identification"):
         build_report(ReportRequest(project, tolerance_um=10.0, tolerance_on="volumetric"))
     with pytest.raises(UserError, match="tolerance on"):
