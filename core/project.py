@@ -86,6 +86,8 @@ __all__ = [
 ]
 
 FORMAT_VERSION = 1
+# "report": what the calibration report states that the measurement does not (certificate
+# fields, the user's ISO 230-2 tolerances per axis), written by the workbench's report dialog.
 RESULT_KINDS = ("identifications", "loops", "sensitivity", "compensation", "thermal", "report")
 UNIT_SUFFIXES = {"_um": "um", "_urad": "urad", "_mm": "mm", "_s": "s", "_c": "degC"}
 _RESERVED = "volucal_"
