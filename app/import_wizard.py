@@ -15,7 +15,8 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import os
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,6 +35,7 @@ from PySide6.QtWidgets import (
     QLabel,
     QLineEdit,
     QListWidget,
+    QMessageBox,
     QProgressBar,
     QPushButton,
     QSplitter,
@@ -47,6 +49,7 @@ from PySide6.QtWidgets import (
 from volucal.core.io.plan import (
     ImportResult,
     LineImport,
+    OutsideFolderError,
     import_line,
     import_plan,
     load_plan,
@@ -94,6 +97,46 @@ def preview_files(specs: Sequence[LineSpec], progress: ProgressCallback | None =
     return out
 
 
+def read_plan(parent: QWidget, path: Path, use: Callable[[Plan], None]) -> None:
+    """Read a plan.toml and hand it to ``use``. A plan whose files lie outside its own folder is
+    read only once the user allows the folder that holds them (the command line's
+    ``--files-root``): a plan from elsewhere must not make volucal read any file it names."""
+
+    def attempt(root: Path | None) -> None:
+        try:
+            plan = load_plan(path, files_root=root)
+        except OutsideFolderError as exc:
+            own = Path(path).resolve().parent
+            folder = Path(os.path.commonpath([own, exc.real.parent]))
+            if root is not None and folder == root:
+                show_error(parent, "Cannot read the plan", str(exc))
+                return
+            box = QMessageBox(
+                QMessageBox.Icon.Question, "Files outside the plan's folder",
+                f"The plan {Path(path).name} reads {exc.real}, outside its own folder {own}.\n\n"
+                "volucal reads a plan's files only from the plan's folder unless you allow "
+                f"another. Allow the files under {folder}?",
+                QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No, parent,
+            )
+            box.setObjectName("outsideFolderDialog")
+            box.setDefaultButton(QMessageBox.StandardButton.No)
+
+            def answered(_: int) -> None:
+                if box.clickedButton() is box.button(QMessageBox.StandardButton.Yes):
+                    attempt(folder)
+
+            box.finished.connect(answered)
+            box.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
+            box.open()
+            return
+        except UserError as exc:
+            show_error(parent, "Cannot read the plan", str(exc))
+            return
+        use(plan)
+
+    attempt(None)
+
+
 class ImportWizard(QWizard):
     """File ▸ Import logs… ``imported`` holds the ImportResult once the wizard is finished."""
 
@@ -130,18 +173,19 @@ class ImportWizard(QWizard):
             return self.base_plan.machine
         return self.project_machine or Machine()
 
-    def load_plan_file(self, path: Path) -> bool:
-        """Use a plan.toml: its machine and its lines (and their files)."""
-        try:
-            plan = load_plan(path)
-        except UserError as exc:
-            show_error(self, "Cannot read the plan", str(exc))
-            return False
-        self.base_plan = plan
-        for spec in plan.lines:
-            self.specs[str(Path(spec.file or "").resolve())] = spec
-        set_last_folder(Path(path))
-        return True
+    def load_plan_file(self, path: Path, done: Callable[[Plan], None] | None = None) -> None:
+        """Use a plan.toml: its machine and its lines (and their files); ``done`` follows once
+        it is read (after the user allowed a folder, if the plan reads files outside its own)."""
+
+        def use(plan: Plan) -> None:
+            self.base_plan = plan
+            for spec in plan.lines:
+                self.specs[str(Path(spec.file or "").resolve())] = spec
+            set_last_folder(Path(path))
+            if done is not None:
+                done(plan)
+
+        read_plan(self, path, use)
 
     def add_log(self, path: Path) -> None:
         key = str(path.resolve())
@@ -199,9 +243,12 @@ class FilesPage(QWizardPage):
         for path in paths:
             path = Path(path)
             if path.suffix.lower() == PLAN_SUFFIX:
-                if wizard.load_plan_file(path):
-                    self.plan_label.setText(f"Plan: {path} ({len(wizard.base_plan.lines)} "  # type: ignore[union-attr]
-                                            "lines)")
+
+                def shown(plan: Plan, path: Path = path) -> None:
+                    self.plan_label.setText(f"Plan: {path} ({len(plan.lines)} lines)")
+                    self._fill()
+
+                wizard.load_plan_file(path, shown)
             elif path.is_file():
                 wizard.add_log(path)
                 set_last_folder(path)
@@ -699,12 +746,10 @@ class PlanPage(QWizardPage):
 
     def load(self, path: Path) -> None:
         """Take the machine and, for the files listed here, the lines of a plan.toml."""
+        read_plan(self, path, self._use_plan)
+
+    def _use_plan(self, plan: Plan) -> None:
         wizard = self.wizard()
-        try:
-            plan = load_plan(path)
-        except UserError as exc:
-            show_error(self, "Cannot read the plan", str(exc))
-            return
         wizard.base_plan = plan
         by_file = {str(Path(s.file or "").resolve()): s for s in plan.lines}
         rows = []

@@ -56,6 +56,7 @@ from .records import Live
 from .report_dialog import ReportDialog, TolerancesDialog
 from .sensitivity_view import SensitivityView
 from .tasks import Task, TaskRunner, wait_for_all
+from .thermal_records_view import ThermalRecordsView
 from .user_guide import UserGuide
 from .view_base import View
 
@@ -65,9 +66,9 @@ PROJECT_FILTER = "volucal projects (*.h5 *.hdf5);;All files (*)"
 #: Tree kinds → view keys.
 KIND_VIEW = {"machine": "machine", "measurements": "measurement",
              "identifications": "identification", "loops": "loop", "sensitivity": "sensitivity",
-             "compensation": "compensation"}
+             "compensation": "compensation", "thermal": "thermal"}
 VIEW_ORDER = ("machine", "measurement", "identification", "loop", "sensitivity", "compensation",
-              "comparison")
+              "comparison", "thermal")
 LENGTH_CHOICES = (("um", "µm"), ("mm", "mm"), ("inch", "inch"))
 ANGLE_CHOICES = (("urad", "µrad"), ("arcsec", "arcsec"), ("um_per_m", "µm/m"))
 
@@ -109,6 +110,7 @@ class MainWindow(QMainWindow):
             "sensitivity": SensitivityView(self.document),
             "compensation": CompensationView(self.document),
             "comparison": ComparisonView(self.document),
+            "thermal": ThermalRecordsView(self.document),
         }
         self.stack = QStackedWidget()
         for key in VIEW_ORDER:

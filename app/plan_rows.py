@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from volucal.core.io.units import is_angle
 from volucal.core.machine import AXES, Machine
 from volucal.core.measurement import QUANTITIES, LineSpec, PlanError
 
@@ -73,7 +74,7 @@ class LineRow:
             reflector=format_vector(spec.reflector_mm),
             sign=spec.sign,
             env_corrected=spec.env_corrected,
-            deviation_unit=spec.deviation_unit,
+            deviation_unit=spec.deviation_unit if spec.deviation_unit_stated else None,
             reader=dict(spec.reader),
         )
 
@@ -85,9 +86,18 @@ class LineRow:
                             "with '.'")
         if self.quantity not in QUANTITIES:
             raise PlanError(f"{where}: quantity must be one of {', '.join(QUANTITIES)}")
+        # no unit chosen: the file must state its own (a .rtl is µm, a .rta µrad); a table that
+        # does not is refused at import with a message that asks for one, never read as µm
         unit = self.deviation_unit
-        if unit is None or (unit == "urad") != (self.quantity == "angular"):
+        stated = unit is not None
+        if unit is None:
             unit = "urad" if self.quantity == "angular" else "um"
+        elif is_angle(unit) != (self.quantity == "angular"):
+            raise PlanError(
+                f"{where}: the unit {unit!r} does not fit a {self.quantity} line; give "
+                + ("an angle unit (urad, mrad, arcsec, deg)" if self.quantity == "angular"
+                   else "a length unit (nm, um, mm, in)")
+            )
         return LineSpec(
             name=self.name.strip(),
             quantity=self.quantity,
@@ -98,6 +108,7 @@ class LineRow:
             if self.sensitive.strip() else None,
             file=self.file,
             deviation_unit=unit,
+            deviation_unit_stated=stated,
             sign=self.sign,
             env_corrected=self.env_corrected,
             reader=dict(self.reader),
@@ -135,6 +146,7 @@ def guess_spec(path: Path, machine: Machine) -> LineSpec:
         sensitive=sensitive,
         file=str(path.resolve()),
         deviation_unit="urad" if quantity == "angular" else "um",
+        deviation_unit_stated=False,
     )
 
 

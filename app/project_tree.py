@@ -1,4 +1,5 @@
-"""The project tree: machine, measurements, identifications, loops, sensitivity, compensation.
+"""The project tree: machine, measurements, identifications, loops, sensitivity, compensation,
+thermal records.
 
 Selecting an item asks the main window to show its view (``itemChosen(kind, name)``); the
 context menu removes a line or a result (undoable).
@@ -20,6 +21,7 @@ GROUPS = (
     ("loops", "Loops"),
     ("sensitivity", "Sensitivity"),
     ("compensation", "Compensation"),
+    ("thermal", "Thermal records"),
 )
 ROLE_KIND = Qt.ItemDataRole.UserRole
 ROLE_NAME = Qt.ItemDataRole.UserRole + 1

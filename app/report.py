@@ -43,10 +43,12 @@ from volucal.core.report_blocks import (
     Table,
 )
 from volucal.core.report_content import ReportContent, ReportRequest, build_report
+from volucal.core.thermal_report import ThermalPlot
 from volucal.core.tolerances import Tolerances
 from volucal.core.userror import UserError
 
 from .report_plots import draw_bars, draw_curve, draw_iso_graph, draw_signatures
+from .report_thermal import THERMAL_PLOT_HEIGHT_MM, draw_thermal_plot
 
 RESOLUTION_DPI = 300
 MARGIN_MM = 16.0
@@ -238,6 +240,9 @@ class _Layout:
             self.iso_graphs(block)
         elif isinstance(block, Signatures):
             self.signatures(block)
+        elif isinstance(block, ThermalPlot):
+            self.place(THERMAL_PLOT_HEIGHT_MM * self.mm,
+                       lambda p, r: draw_thermal_plot(p, r, block, self.scale))
         else:
             self.chart(block)
 

@@ -171,6 +171,13 @@ class ReportRequest:
 # --------------------------------------------------------------------------------------------
 
 
+def thermal_sections(project: Project) -> list[Section]:
+    """One page per thermal record and channel the project holds (core/thermal_report.py)."""
+    from .thermal_report import sections_for_project  # it builds on this module's blocks
+
+    return sections_for_project(project)
+
+
 def build_report(request: ReportRequest) -> ReportContent:
     """Gather the report of a project (module notes give the sources)."""
     if request.tolerance_on not in QUANTITIES:
@@ -237,6 +244,7 @@ def build_report(request: ReportRequest) -> ReportContent:
         _compensation(results, compensation_dir, verification, verification_source),
         remeasurement_section(comparison, Path(request.remeasurement_path or "").name, units),
         _uncertainty(project, budget, results),
+        *thermal_sections(project),
     ]
     if conformance is not None:
         sections.append(_conformance(conformance))

@@ -340,10 +340,11 @@ def _data_file(plan: Path, name: str, root: Path, root_given: bool, format_given
         raise fail("file", f"{name!r} cannot be resolved (a loop of symbolic links?)") from None
     if not real.is_relative_to(root):
         where = "the allowed folder" if root_given else "the plan's folder"
-        raise fail("file", f"{name!r} resolves to {str(real)!r}, outside {where} "
-                   f"{str(root)!r}; volucal reads a plan's files only from there. Move the file "
-                   "into that folder, or allow its folder explicitly (--files-root DIR on the "
-                   "command line, files_root= in load_plan)")
+        error = fail("file", f"{name!r} resolves to {str(real)!r}, outside {where} "
+                     f"{str(root)!r}; volucal reads a plan's files only from there. Move the file "
+                     "into that folder, or allow its folder explicitly (--files-root DIR on the "
+                     "command line, files_root= in load_plan)")
+        raise OutsideFolderError(error.path, error.reason, error.line, real)
     if real.suffix.lower() not in MEASUREMENT_EXTENSIONS and not format_given:
         raise fail("file", f"{name!r} is not named as a measurement file "
                    f"({', '.join(MEASUREMENT_EXTENSIONS)}); if it is one, say how to read it with "
@@ -485,6 +486,15 @@ def write_plan(path: str | Path, plan: Plan) -> None:
 # --------------------------------------------------------------------------------------------
 # Importing the lines
 # --------------------------------------------------------------------------------------------
+
+
+class OutsideFolderError(FormatError):
+    """A plan's file that lies outside the folder the plan may read from; ``real`` is where it
+    is, so that a program can ask its user whether to allow that folder."""
+
+    def __init__(self, path: object, message: str, line: int | None, real: Path) -> None:
+        super().__init__(path, message, line)
+        self.real = real
 
 
 class LineFieldError(PlanError):

@@ -1,5 +1,7 @@
 """The import wizard end to end, drag and drop, and bad files (error dialog, project unchanged)."""
 
+import dataclasses
+import os
 import shutil
 from pathlib import Path
 
@@ -11,6 +13,7 @@ from PySide6.QtWidgets import QApplication, QMessageBox, QWizard
 from volucal.app.mainwindow import MainWindow
 from volucal.core.io.plan import import_plan, load_plan
 from volucal.core.resources import demo_plan
+from volucal.core.userror import UserError
 
 
 @pytest.fixture
@@ -22,8 +25,11 @@ def empty_window(qtbot):
 
 
 def error_dialogs():
-    return [w for w in QApplication.topLevelWidgets()
-            if isinstance(w, QMessageBox) and w.objectName() == "errorDialog" and w.isVisible()]
+    return [
+        w
+        for w in QApplication.topLevelWidgets()
+        if isinstance(w, QMessageBox) and w.objectName() == "errorDialog" and w.isVisible()
+    ]
 
 
 def close_dialogs():
@@ -83,8 +89,7 @@ def test_import_wizard_end_to_end_on_the_demo_logs(qtbot, empty_window):
     assert len(document.line_names()) == 49
 
 
-def test_log_files_without_a_plan_are_placed_in_the_plan_editor(qtbot, empty_window,
-                                                                tmp_path):
+def test_log_files_without_a_plan_are_placed_in_the_plan_editor(qtbot, empty_window, tmp_path):
     logs = demo_plan().parent / "logs"
     files = [logs / "x_linear.rtl", logs / "y_linear.rtl"]
     wizard = empty_window.import_logs(files)
@@ -101,7 +106,7 @@ def test_log_files_without_a_plan_are_placed_in_the_plan_editor(qtbot, empty_win
     page.set_cell(rows["y_linear"], "direction", "0, 1, 0")
     assert page.isComplete()
     page.save(tmp_path / "edited.toml")
-    saved = load_plan(tmp_path / "edited.toml")
+    saved = load_plan(tmp_path / "edited.toml", files_root=logs)
     assert {s.name: s for s in saved.lines}["y_linear"].start_mm == (400.0, 0.0, 0.0)
     wizard.next()
     qtbot.waitUntil(wizard.import_page.isComplete, timeout=60_000)
@@ -109,12 +114,13 @@ def test_log_files_without_a_plan_are_placed_in_the_plan_editor(qtbot, empty_win
     project = empty_window.document.project
     assert project.lines["y_linear"].spec.start_mm == (400.0, 0.0, 0.0)
     # an edited plan has no file of its own: the project keeps its text
-    assert "name = \"y_linear\"" in project.plan_toml and "start = [400.0, 0.0, 0.0]" in \
-        project.plan_toml
+    assert (
+        'name = "y_linear"' in project.plan_toml
+        and "start = [400.0, 0.0, 0.0]" in project.plan_toml
+    )
 
 
-def test_a_broken_log_shows_the_core_message_and_the_project_is_unchanged(qtbot, window,
-                                                                         tmp_path):
+def test_a_broken_log_shows_the_core_message_and_the_project_is_unchanged(qtbot, window, tmp_path):
     source = demo_plan().parent / "logs" / "x_linear.rtl"
     broken = tmp_path / "x_broken.rtl"
     lines = source.read_text(encoding="utf-8").splitlines()
@@ -138,8 +144,7 @@ def test_a_broken_log_shows_the_core_message_and_the_project_is_unchanged(qtbot,
     assert window.document.is_clean
 
 
-def test_a_damaged_project_file_shows_an_error_and_keeps_the_open_project(qtbot, window,
-                                                                         tmp_path):
+def test_a_damaged_project_file_shows_an_error_and_keeps_the_open_project(qtbot, window, tmp_path):
     damaged = tmp_path / "damaged.h5"
     damaged.write_bytes(b"this is not HDF5")
     path = window.document.path
@@ -168,23 +173,99 @@ def test_lines_the_project_has_already_are_refused_whole(qtbot, window, small_pl
     qtbot.waitUntil(wizard.import_page.isComplete, timeout=60_000)
     wizard.button(QWizard.WizardButton.FinishButton).click()
     assert sorted(window.document.line_names()) == sorted(
-        before + [f"{name}_again" for name in before])
+        before + [f"{name}_again" for name in before]
+    )
     window.undo_action.trigger()
     assert sorted(window.document.line_names()) == before
 
 
-def test_dropping_files_opens_projects_and_the_import_wizard(qtbot, empty_window,
-                                                             small_project, tmp_path):
+def test_dropping_files_opens_projects_and_the_import_wizard(
+    qtbot, empty_window, small_project, tmp_path
+):
     log = tmp_path / "x_linear.rtl"
     shutil.copyfile(demo_plan().parent / "logs" / "x_linear.rtl", log)
     for path in (small_project, log):
         data = QMimeData()
         data.setUrls([QUrl.fromLocalFile(str(path))])
-        event = QDropEvent(QPointF(50, 50), Qt.DropAction.CopyAction, data,
-                           Qt.MouseButton.LeftButton, Qt.KeyboardModifier.NoModifier)
+        event = QDropEvent(
+            QPointF(50, 50),
+            Qt.DropAction.CopyAction,
+            data,
+            Qt.MouseButton.LeftButton,
+            Qt.KeyboardModifier.NoModifier,
+        )
         empty_window.dropEvent(event)
     assert empty_window.document.path == small_project
     wizard = empty_window.wizard
     assert wizard is not None and wizard.isVisible()
     assert wizard.files_page.list.item(0).text() == str(log.resolve())
     wizard.reject()
+
+
+def test_a_plan_reading_files_elsewhere_asks_for_that_folder(qtbot, empty_window, tmp_path):
+    """A plan whose files lie outside its folder is read only once the user allows the folder
+    that holds them (the command line's --files-root); refusing reads nothing."""
+    logs = demo_plan().parent / "logs"
+    text = demo_plan().read_text(encoding="utf-8")
+    elsewhere = tmp_path / "plans" / "plan.toml"
+    elsewhere.parent.mkdir()
+    relative = Path(os.path.relpath(logs, elsewhere.parent)).as_posix()
+    elsewhere.write_text(text.replace('file = "logs/', f'file = "{relative}/'), encoding="utf-8")
+
+    def question():
+        boxes = [
+            w
+            for w in QApplication.topLevelWidgets()
+            if isinstance(w, QMessageBox)
+            and w.objectName() == "outsideFolderDialog"
+            and w.isVisible()
+        ]
+        return boxes[0] if boxes else None
+
+    wizard = empty_window.import_logs([elsewhere])
+    qtbot.waitUntil(lambda: question() is not None, timeout=5_000)
+    assert str(logs.resolve()) in question().text()
+    question().button(QMessageBox.StandardButton.No).click()
+    assert wizard.base_plan is None and wizard.files_page.list.count() == 0
+
+    wizard.files_page.add_paths([elsewhere])
+    qtbot.waitUntil(lambda: question() is not None, timeout=5_000)
+    question().button(QMessageBox.StandardButton.Yes).click()
+    qtbot.waitUntil(lambda: wizard.base_plan is not None, timeout=5_000)
+    assert len(wizard.base_plan.lines) == 49
+    assert wizard.files_page.list.count() == 49
+    assert not error_dialogs()
+
+
+def test_the_plan_editor_never_states_a_unit_the_user_did_not_choose(tmp_path):
+    """A row without a chosen unit leaves it to the file: a table that does not state its unit is
+    then refused at import (the message asks for one), never read as µm."""
+    from volucal.app.plan_rows import LineRow
+    from volucal.core.io.plan import import_line
+    from volucal.core.measurement import PlanError
+
+    table = tmp_path / "x.csv"
+    table.write_text("position,deviation\n0,0\n100,1.5\n200,2.0\n", encoding="utf-8")
+    row = LineRow(
+        name="x",
+        file=str(table),
+        quantity="linear",
+        start="0, 0, 0",
+        direction="1, 0, 0",
+        sensitive="",
+        reflector="0, 0, 0",
+        reader={"columns": {"position": "position", "deviation": "deviation"}},
+    )
+    spec = row.to_spec()
+    assert not spec.deviation_unit_stated
+    with pytest.raises(UserError, match="unit"):
+        import_line(spec)
+    assert LineRow.from_spec(spec).deviation_unit is None
+    stated = dataclasses.replace(row, deviation_unit="mm").to_spec()
+    assert stated.deviation_unit_stated and stated.deviation_unit == "mm"
+    angular = dataclasses.replace(row, quantity="angular", sensitive="0, 0, 1")
+    assert (
+        dataclasses.replace(angular, deviation_unit="arcsec").to_spec().deviation_unit == "arcsec"
+    )
+    with pytest.raises(PlanError, match="does not fit"):
+        dataclasses.replace(angular, deviation_unit="um").to_spec()

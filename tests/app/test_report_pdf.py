@@ -256,3 +256,25 @@ def test_report_values_follow_the_chosen_units(demo_run, poppler, tmp_path):
     row = next(r for r in text.splitlines() if r.strip().startswith("x_linear ") and " mm " in r)
     assert f"{a_um / 1000:.6f}" in row
     assert "value arcsec" in text and "deviation (mm)" in text
+
+
+def test_report_has_a_page_per_thermal_record(small_project, poppler, tmp_path):
+    """A thermal record in the project (`volucal thermal --project`) gets its page: the model,
+    the held-out error and the plot of error and prediction over time."""
+    from volucal.core.project import Project
+    from volucal.core.thermal_fit import ThermalFitRequest, fit_thermal
+    from volucal.core.thermal_sim import SimulatedThermalTest, simulate_thermal_test
+    from volucal.core.thermal_store import store_thermal
+
+    measurement = simulate_thermal_test(SimulatedThermalTest(hours=12, seed=3), name="warm-up")
+    fitted = fit_thermal(ThermalFitRequest(measurement))
+    path = tmp_path / "thermal.h5"
+    project = Project.open(small_project)
+    store_thermal(project, "warm-up", measurement, [fitted])
+    project.save(path)
+    pdf = tmp_path / "thermal.pdf"
+    written = write_report(path, pdf)
+    text = pdf_text(pdf)
+    assert pdf_pages(pdf) == written.pages
+    assert f"Thermal error: {fitted.channel}" in text
+    assert "held" in text.lower()

@@ -108,3 +108,24 @@ def test_report_page(qtbot, result, tmp_path) -> None:
 def result_measurement(result):
     """The measurement the fixture fitted (rebuilt from its seed)."""
     return simulate_thermal_test(SimulatedThermalTest(hours=12, seed=3), name="warm-up")
+
+
+def test_main_window_shows_the_projects_thermal_records(qtbot, window, tmp_path) -> None:
+    """A record stored by `volucal thermal --project` is listed in the tree and shown, as
+    fitted, by the window's Thermal view, reached through the View menu."""
+    from PySide6.QtGui import QAction
+
+    measurement = simulate_thermal_test(SimulatedThermalTest(hours=12, seed=3), name="warm-up")
+    fitted = fit_thermal(ThermalFitRequest(measurement))
+    path = tmp_path / "with_thermal.h5"
+    project = Project.open(window.document.project.path)
+    store_thermal(project, "warm-up", measurement, [fitted])
+    project.save(path)
+    assert window.open_project(path)
+    action = next(a for a in window.findChildren(QAction) if a.text().endswith(" Thermal"))
+    action.trigger()
+    view = window.views["thermal"]
+    assert window.stack.currentWidget() is view
+    qtbot.waitUntil(lambda: view.view.result is not None, timeout=10_000)
+    assert view.record.currentText() == "warm-up"
+    np.testing.assert_allclose(view.view.predicted_curve.getData()[1], fitted.predicted)
