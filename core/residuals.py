@@ -93,9 +93,12 @@ class LoopOptions:
         would remove is at least this share of the strongest proposal's.
     tie : candidates whose cross-validated RMS is within this share of the best are equal; the
         one with fewer parameters is kept.
-    repeatability_log10, repeatability_spread : a candidate whose size, fitted line by line or
-        run by run, varies beyond the noise at this false-alarm level (log10) and by more than
-        this share is refused (:func:`_inconsistency`).
+    repeatability_log10, repeatability_spread : a candidate whose size, fitted run by run (line
+        by line in the final audit), varies beyond the noise at this false-alarm level (log10)
+        and by more than this share is refused (:func:`_sizes`); the share tolerates a shape
+        that fits the structure imperfectly.
+    repeatability_spread_setup : the same share for a set-up effect (Abbe offset, cosine
+        misalignment), whose shape is exact.
     time_constants_s : the range over which a time-driven drift's τ is estimated.
     cross_axis_orders, cross_axis_lever_orders : the total degrees tried for a cross-axis
         surface without and with lever-arm terms (:class:`CrossAxis`; chosen by cross-validation).
@@ -112,8 +115,9 @@ class LoopOptions:
     tie: float = 0.01
     repeatability_log10: float = -5.0
     repeatability_spread: float = 0.3
+    repeatability_spread_setup: float = 0.1
     time_constants_s: tuple[float, float] = (300.0, 7 * 86400.0)
-    cross_axis_orders: tuple[int, ...] = (4, 5, 6)
+    cross_axis_orders: tuple[int, ...] = (4, 5, 6, 8)
     cross_axis_lever_orders: tuple[int, ...] = (3, 4)
     plausibility: Plausibility = field(default_factory=Plausibility)
     identify: IdentifyOptions = field(default_factory=IdentifyOptions)
@@ -1111,7 +1115,9 @@ def _judge(
             f"the fitted residual (at least {100 * options.generalisation:.0f} % needed): it does "
             "not describe the structure it fits; refused"
         )
-    unrepeatable = _unrepeatable(_sizes(refit, contribution), options)
+    unrepeatable = _unrepeatable(
+        _sizes(refit, contribution), options, exact_shape=effect.line_index is not None
+    )
     if unrepeatable is not None:
         return refused(unrepeatable)
     return _Trial(finding, refit, cv_new, True, reason, parameters)
@@ -1202,11 +1208,14 @@ def _sizes(refit: Identification, contribution: FloatArray) -> _Sizes:
     return _Sizes(log_line, line_spread, run_log, run_spread)
 
 
-def _unrepeatable(sizes: _Sizes, options: LoopOptions) -> str | None:
-    """Why a candidate is refused for sizes that change from run to run within its lines."""
-    if sizes.run_log10_p < options.repeatability_log10 and (
-        sizes.run_spread > options.repeatability_spread
-    ):
+def _unrepeatable(sizes: _Sizes, options: LoopOptions, exact_shape: bool = False) -> str | None:
+    """Why a candidate is refused for sizes that change from run to run within its lines.
+
+    ``exact_shape``: the candidate's shape is exactly that of the effect it names (a set-up's
+    scale or lever arm on its own line), so no misfit of shape can make its size vary: the
+    tighter ``repeatability_spread_setup`` applies."""
+    limit = options.repeatability_spread_setup if exact_shape else options.repeatability_spread
+    if sizes.run_log10_p < options.repeatability_log10 and sizes.run_spread > limit:
         return (
             f"not repeatable: fitted run by run within each line, its size varies by "
             f"{100 * sizes.run_spread:.0f} % (log10 false alarm {sizes.run_log10_p:.1f}), far "
