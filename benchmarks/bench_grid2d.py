@@ -13,7 +13,11 @@ Figures (real data from ../shared/realdata/aerotech_2d_stitching, read in place)
    Residual = measured − predicted, with each method's own gauge terms (as fitted on the even
    nodes) and, second, with the gauge terms refitted on the held-out nodes. Target: volucal's
    residual below the vendor's. Also by class of held-out node (between columns of a fitted
-   row, between fitted rows, both).
+   row, between fitted rows, both); volucal's model written as a table at the fitted step and at
+   half of it, interpolated bilinearly as a controller does; the mean-square gain with its
+   standard error over the held-out rows; what the cross-validation chose; the rows' X offsets
+   that limit every model between rows; the same without the one-standard-error rule; and the
+   other three parity classes of nodes as the fitted ones.
 4. Four zones (642583 CZ1..CZ4) stitched by one least-squares fit (each zone with its own laser
    zero and mirror rotation) against the table the vendor's stitching program wrote.
 5. A synthetic grid with smooth errors and 0.1 µm laser noise, held out the same way: where the

@@ -179,7 +179,7 @@ class CrossValidation:
             mine = fold.held & (r.direction == term.direction)
             seen = fold.measured[term.id]
             values = fold.node_values[term.id][seen]
-            coefficients = fit_smooth_part(basis, choice.degree, nodes[seen], values,
+            coefficients = fit_smooth_part(basis, nodes[seen], values,
                                            choice.smoothing)
             departures = values - basis.design(nodes[seen]) @ coefficients
             q = r.position[mine, term.argument]
@@ -225,6 +225,8 @@ class CrossValidation:
                     lookup = FunctionChoice(1, min(smoothing), 1.0)
                     best = (self._errors(term, lookup, folds, target), lookup)
                     baseline = best[0]
+                    if not np.isfinite(baseline).any():
+                        continue  # no line between two measured ones: the lookup table stays
                     for degree in degrees:
                         for weight in smoothing:
                             candidate = FunctionChoice(degree, weight, 1.0)

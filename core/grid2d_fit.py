@@ -200,11 +200,11 @@ def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
                         "names")
     lattice = common_lattice(grid_list)
     reference = request.reference_mm or (float(lattice.x_mm[0]), float(lattice.y_mm[0]))
-    for k, axis in enumerate(GRID_AXES):
-        nodes = lattice.x_mm if k == 0 else lattice.y_mm
-        if not nodes[0] - 1e-9 <= reference[k] <= nodes[-1] + 1e-9:
-            raise UserError(f"the reference {axis} = {reference[k]:g} mm lies outside the grid "
-                            f"({nodes[0]:g} to {nodes[-1]:g} mm)")
+    nodes = (lattice.x_mm, lattice.y_mm)
+    for k, name in enumerate(GRID_AXES):
+        if not nodes[k][0] - 1e-9 <= reference[k] <= nodes[k][-1] + 1e-9:
+            raise UserError(f"the reference {name} = {reference[k]:g} mm lies outside the grid "
+                            f"({nodes[k][0]:g} to {nodes[k][-1]:g} mm)")
     readings = stack_readings(grid_list, lattice)
     directions = sorted({int(d) for d in np.unique(readings.direction)})
     upper = _upper_axis(grid_list, request)
@@ -215,7 +215,6 @@ def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
     system = build_system(readings, lattice, terms, reference, len(grid_list), set(directions),
                           square)
     solver = SurfaceSolver(lattice)
-    nodes = (lattice.x_mm, lattice.y_mm)
     cv = CrossValidation(readings, system, solver, nodes, reference, request.folds, directions)
 
     # 1. node tables and gauges
@@ -278,11 +277,13 @@ def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
         return {GRID_AXES[k]: rms(values[mask & (readings.direction == k)]) for k in directions}
 
     between: dict[str, object] = {}
-    for axis, label in ((1, "rows"), (0, "columns")):
-        if any(t.argument == axis for t in terms):
-            ours, held = cv.line_errors(terms, choices, weights, axis)
+    for line_axis, label in ((1, "rows"), (0, "columns")):
+        if any(t.argument == line_axis for t in terms):
+            ours, held = cv.line_errors(terms, choices, weights, line_axis)
+            if not held.any():
+                continue
             table = {t.id: FunctionChoice(1, min(request.smoothing), 1.0) for t in terms}
-            lookup, _ = cv.line_errors(terms, table, weights, axis)
+            lookup, _ = cv.line_errors(terms, table, weights, line_axis)
             between[label] = {"model": by_direction(ours, held),
                               "node_values_interpolated": by_direction(lookup, held)}
     statistics = {
@@ -343,7 +344,7 @@ def _function(term: Term, choice: FunctionChoice, nodes: FloatArray, values: Flo
     there too.
     """
     basis = smooth_basis(nodes, choice.degree)
-    coefficients = fit_smooth_part(basis, choice.degree, nodes[measured], values[measured],
+    coefficients = fit_smooth_part(basis, nodes[measured], values[measured],
                                    choice.smoothing)
     at = nodes[measured]
     value = values[measured]

@@ -146,8 +146,7 @@ class RigidSystem:
     bases: dict[str, NodeTableBasis]
     scalar_names: list[str]
     terms: list[Term]
-    _fold_cache: dict[int, tuple[IntArray, list[tuple[FloatArray, FloatArray]]]] = field(
-        default_factory=dict)
+    _fold_cache: dict[int, tuple[IntArray, list[FloatArray]]] = field(default_factory=dict)
 
     @cached_property
     def transform(self) -> FloatArray:
@@ -203,7 +202,7 @@ class RigidSystem:
                                        t.T @ (total_rhs - rows.T @ values[folds == f])))
             cached = (folds, solutions)
             self._fold_cache[key] = cached
-        return cached[1]  # type: ignore[return-value]
+        return cached[1]
 
     def block_slices(self) -> list[slice]:
         out, start = [], 0

@@ -39,7 +39,7 @@ def test_the_carry_kernel_is_a_table_at_half_the_node_step(carry):
 def test_a_function_is_its_node_values_at_the_nodes_whatever_its_smooth_part(degree, carry):
     values = np.array([0.0, 1.3, -0.4, 0.9, 0.2])
     basis = NodeTableBasis(tuple(NODES)) if degree == 1 else BSplineBasis(tuple(NODES))
-    smooth = fit_smooth_part(basis, degree, NODES, values, 10.0)
+    smooth = fit_smooth_part(basis, NODES, values, 10.0)
     departures = values - basis.design(NODES) @ smooth
     combined = NodeDepartureBasis(basis, tuple(NODES), carry)
     coefficients = np.concatenate([smooth, departures])
@@ -61,7 +61,7 @@ def test_the_cubic_smooth_part_is_the_smoothing_spline_of_the_node_values():
     values = np.sin(lattice[seen] / 17.0) + rng.normal(0, 0.2, seen.sum())
     basis = BSplineBasis(tuple(lattice))
     for weight in (0.1, 1.0, 30.0):
-        smooth = fit_smooth_part(basis, 3, lattice[seen], values, weight)
+        smooth = fit_smooth_part(basis, lattice[seen], values, weight)
         reference = make_smoothing_spline(lattice[seen], values, lam=weight * 10.0**3)
         q = np.linspace(0.0, 100.0, 57)
         np.testing.assert_allclose(basis.design(q) @ smooth, reference(q), atol=1e-7)
@@ -70,7 +70,7 @@ def test_the_cubic_smooth_part_is_the_smoothing_spline_of_the_node_values():
 def test_the_node_table_smooth_part_tends_to_the_mean():
     basis = NodeTableBasis(tuple(NODES))
     values = np.array([0.0, 1.3, -0.4, 0.9, 0.2])
-    smooth = fit_smooth_part(basis, 1, NODES, values, 1e9)
+    smooth = fit_smooth_part(basis, NODES, values, 1e9)
     np.testing.assert_allclose(smooth, values.mean(), atol=1e-6)
 
 
