@@ -196,11 +196,11 @@ class CrossValidation:
         """Each function's smooth part and carry with the least held-out-line error.
 
         The linear interpolation of the node values (a lookup table) is the default: another
-        choice must beat it by ``significance`` standard errors of its held-out gain. Lines are
-        held out at twice the node spacing, where smoothing gains more over linear
-        interpolation than at the spacing the model is used at (linear interpolation's error
-        on a smooth function grows as the square of the gap, a node's departure does not), so
-        a gain within the noise of the cross-validation is not taken.
+        choice must beat it by ``significance`` standard errors of its held-out gain. A held-out
+        line lies halfway across a gap of two node steps, twice the gap the model is used
+        across; there smoothing gains more over linear interpolation (linear interpolation's
+        error on a smooth function grows as the square of the gap, a node's departure does
+        not), so a gain within the noise of the cross-validation is not taken.
 
         Functions of the same coordinate (EXY, EYY and ECY all follow y) are predicted
         together on a held-out line, so they are chosen in turn, each with the others' current
