@@ -22,11 +22,23 @@ signs (DESIGN.md "Conventions"; µm, µrad, mm; 1e-3 turns µrad·mm into µm)::
   volucal. The rotation gauge leaves squareness observable: a turned reference adds −θ·y to X and
   +θ·x to Y, a squareness error only −EC0Y·y to X.
 
-Each error function is a degree-1 (node table) or cubic B-spline on the lattice nodes with a
-difference penalty (P-splines, Eilers & Marx 1996); its degree and smoothing are chosen by K-fold
-cross-validation over what the function interpolates: held-out lattice columns for functions of
-x, held-out rows for functions of y. The surface's smoothing is chosen over held-out points.
-Standard uncertainties come from the scatter of the readings about the rigid-body terms (taken as
+Fitting, in three steps:
+
+1. The rigid-body terms as node tables, one value per lattice line, by least squares with the
+   gauges (:mod:`volucal.core.grid2d_system`): each node value is what its line's readings say.
+   What no function of one coordinate can hold is left to the surface, which therefore never
+   holds a line's offset.
+2. The surface fitted to what the node tables leave, its smoothing chosen by K-fold
+   cross-validation over held-out points (:mod:`volucal.core.grid2d_cv`).
+3. Each error function between its nodes: a smooth part (node table or cubic P-spline) plus the
+   departures of its measured nodes from it, carried part-way to the next node
+   (:mod:`volucal.core.grid2d_departures`). Degree, smoothing and carry are chosen by K-fold
+   cross-validation over held-out lattice lines (columns for functions of x, rows for functions
+   of y), which is what predicting the error between measured nodes asks of the model.
+
+At the measured nodes the model is the node tables plus the surface, so it reproduces the
+measured map; between them it is the cross-validated prediction. Standard uncertainties of the
+node values come from the scatter of the readings about the rigid-body terms (taken as
 independent; neighbouring readings are correlated, so they are a lower bound).
 """
 
@@ -35,33 +47,35 @@ from __future__ import annotations
 import ctypes
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
-from functools import cached_property
+from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sparse
 from numpy.typing import NDArray
-from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
-from .errors import Basis, BSplineBasis, ErrorFunction, NodeTableBasis, gauge_null_space
-from .grid2d import (
-    GRID_AXES,
-    UM_PER_MM_URAD,
-    GridGauge,
-    GridMeasurement,
-    Lattice,
-    common_lattice,
-    rms,
-)
+from .errors import ErrorFunction, NodeTableBasis
+from .grid2d import GRID_AXES, GridGauge, GridMeasurement, Lattice, common_lattice, rms
+from .grid2d_cv import CrossValidation, FunctionChoice
+from .grid2d_departures import NodeDepartureBasis, fit_smooth_part, smooth_basis
 from .grid2d_model import GridIdentification
 from .grid2d_surface import SurfaceSolver
+from .grid2d_system import (
+    TERMS,
+    YAW,
+    Readings,
+    Term,
+    build_system,
+    solve,
+    stack_readings,
+)
 from .userror import UserError
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-#: Smoothing weights tried by cross-validation (per reading, relative to the data term).
-SMOOTHING = tuple(10.0**k for k in range(-3, 1))
+#: Smoothing weights of an error function's smooth part tried by cross-validation (relative to
+#: one node value; a node value holds a whole line's readings), from nearly through the node
+#: values to nearly a straight line (cubic) or a constant (node table).
+SMOOTHING = tuple(10.0**k for k in range(-2, 6))
 SURFACE_SMOOTHING = tuple(10.0**k for k in range(-3, 4))
 DEGREES = (1, 3)
 
@@ -73,11 +87,15 @@ class GridFitRequest:
     upper_axis : "auto" (from the grids), "X", "Y" or None (no yaw lever-arm term).
     reference_mm : (x, y) where every error function is zero; the lattice's first node.
     surface : fit the cross-axis surface (the 2-D map beyond the rigid-body terms).
-    folds : K of the K-fold cross-validation.
-    degrees, smoothing : the candidates cross-validation chooses from for the error functions
-        (smoothing weights up to 1: stronger smoothing biases a function more than its stated
-        uncertainty says); surface_smoothing: those for the cross-axis surface.
-    sweeps : passes over the error functions when choosing their smoothing.
+    folds : K of the K-fold cross-validations.
+    degrees, smoothing : the candidates cross-validation chooses from for the smooth part of
+        each error function (module notes, step 3); surface_smoothing: those for the
+        cross-axis surface.
+    sweeps : passes over the functions of one coordinate when choosing them.
+    significance : how many standard errors of its cross-validated gain a function's smooth
+        part and carry must beat the linear interpolation of its node values by (the lookup
+        table a controller makes of them) to be chosen; 0 takes the least cross-validated
+        error.
     """
 
     upper_axis: str | None = "auto"
@@ -88,6 +106,7 @@ class GridFitRequest:
     smoothing: tuple[float, ...] = SMOOTHING
     surface_smoothing: tuple[float, ...] = SURFACE_SMOOTHING
     sweeps: int = 2
+    significance: float = 1.0
 
     def __post_init__(self) -> None:
         if self.upper_axis not in ("auto", "X", "Y", None):
@@ -98,213 +117,9 @@ class GridFitRequest:
             raise UserError("basis degrees must be 1 (node table) or 3 (cubic B-spline)")
         if not self.smoothing or any(not s > 0 for s in self.smoothing + self.surface_smoothing):
             raise UserError("smoothing weights must be positive")
-
-
-@dataclass(frozen=True)
-class _Term:
-    """One error function: which coordinate it is a function of, which readings it enters and
-    the lever arm that multiplies it there."""
-
-    id: str
-    argument: int  # 0: function of x, 1: function of y
-    direction: int  # 0: enters the X readings, 1: the Y readings
-    lever: str  # "", "x" (1e-3·x) or "-y" (−1e-3·y)
-    straightness: bool
-
-
-_TERMS = (
-    _Term("EXX", 0, 0, "", False),
-    _Term("EXY", 1, 0, "", True),
-    _Term("EYX", 0, 1, "", True),
-    _Term("EYY", 1, 1, "", False),
-)
-_YAW = {"Y": _Term("ECY", 1, 1, "x", False), "X": _Term("ECX", 0, 0, "-y", False)}
-
-
-@dataclass
-class _Readings:
-    position: FloatArray  # (m, 2)
-    value: FloatArray  # (m,)
-    direction: IntArray  # (m,)
-    grid: IntArray  # (m,)
-    ix: IntArray
-    iy: IntArray
-
-
-def _readings(grids: Sequence[GridMeasurement], lattice: Lattice) -> _Readings:
-    parts = []
-    for g, grid in enumerate(grids):
-        ix, iy = lattice.index(grid.position_mm)
-        for k in range(2):
-            ok = np.isfinite(grid.deviation_um[:, k])
-            parts.append((grid.position_mm[ok], grid.deviation_um[ok, k], np.full(ok.sum(), k),
-                          np.full(ok.sum(), g), ix[ok], iy[ok]))
-    stacked = [np.concatenate([p[i] for p in parts]) for i in range(6)]
-    return _Readings(stacked[0], stacked[1], stacked[2].astype(np.int64),
-                     stacked[3].astype(np.int64), stacked[4].astype(np.int64),
-                     stacked[5].astype(np.int64))
-
-
-def _basis(nodes: FloatArray, degree: int) -> Basis:
-    return NodeTableBasis(tuple(nodes)) if degree == 1 else BSplineBasis(tuple(nodes))
-
-
-def _difference(size: int, degree: int) -> FloatArray:
-    order = 1 if degree == 1 else 2
-    return np.diff(np.eye(size), order, axis=0) if size > order else np.zeros((0, size))
-
-
-class _Problem:
-    """The linear system of the rigid-body model for one choice of bases."""
-
-    def __init__(self, readings: _Readings, lattice: Lattice, terms: Sequence[_Term],
-                 reference: tuple[float, float], grid_count: int, directions: set[int],
-                 square: bool) -> None:
-        self.readings = readings
-        self.lattice = lattice
-        self.terms = list(terms)
-        self.reference = reference
-        self.grid_count = grid_count
-        self.directions = directions
-        self.square = square
-        self.nodes = (lattice.x_mm, lattice.y_mm)
-
-    def build(self, degrees: dict[str, int]) -> _System:
-        r = self.readings
-        m = r.value.size
-        blocks: list[sparse.csr_matrix] = []
-        transforms: list[FloatArray] = []
-        penalties: list[FloatArray] = []
-        bases: dict[str, Basis] = {}
-        for term in self.terms:
-            basis = _basis(self.nodes[term.argument], degrees[term.id])
-            bases[term.id] = basis
-            rows = np.flatnonzero(r.direction == term.direction)
-            design = basis.design(r.position[rows, term.argument])
-            if term.lever == "x":
-                design = design * (UM_PER_MM_URAD * r.position[rows, 0])[:, None]
-            elif term.lever == "-y":
-                design = design * (-UM_PER_MM_URAD * r.position[rows, 1])[:, None]
-            block = np.zeros((m, basis.size))
-            block[rows] = design
-            blocks.append(sparse.csr_matrix(block))
-            null = gauge_null_space(basis, self.reference[term.argument], term.straightness)
-            transforms.append(null)
-            difference = _difference(basis.size, degrees[term.id])
-            penalties.append(null.T @ difference.T @ difference @ null)
-        extra = []
-        names = []
-        x, y = r.position[:, 0], r.position[:, 1]
-        if self.square:
-            extra.append(np.where(r.direction == 0, -UM_PER_MM_URAD * y, 0.0))
-            names.append("EC0Y")
-        for g in range(self.grid_count):
-            mine = r.grid == g
-            if 0 in self.directions:
-                extra.append(np.where(mine & (r.direction == 0), 1.0, 0.0))
-                names.append(f"offset_x:{g}")
-            if 1 in self.directions:
-                extra.append(np.where(mine & (r.direction == 1), 1.0, 0.0))
-                names.append(f"offset_y:{g}")
-            extra.append(np.where(mine, np.where(r.direction == 0, -y, x) * UM_PER_MM_URAD, 0.0))
-            names.append(f"rotation:{g}")
-        blocks.append(sparse.csr_matrix(np.stack(extra, axis=1)))
-        transforms.append(np.eye(len(extra)))
-        penalties.append(np.zeros((len(extra), len(extra))))
-        return _System(sparse.hstack(blocks).tocsr(), transforms, penalties, bases, names,
-                       self.terms)
-
-
-@dataclass
-class _System:
-    design: sparse.csr_matrix  # readings × original coefficients
-    transforms: list[FloatArray]  # gauge null spaces per block (identity for the scalars)
-    penalties: list[FloatArray]  # per block, in reduced coordinates, without λ
-    bases: dict[str, Basis]
-    scalar_names: list[str]
-    terms: list[_Term]
-    _fold_cache: dict[int, tuple[IntArray, list[tuple[FloatArray, FloatArray]]]] = field(
-        default_factory=dict)
-
-    @cached_property
-    def transform(self) -> FloatArray:
-        size_in = sum(t.shape[0] for t in self.transforms)
-        size_out = sum(t.shape[1] for t in self.transforms)
-        out = np.zeros((size_in, size_out))
-        i = j = 0
-        for t in self.transforms:
-            out[i:i + t.shape[0], j:j + t.shape[1]] = t
-            i += t.shape[0]
-            j += t.shape[1]
-        return out
-
-    def penalty(self, smoothing: dict[str, float]) -> FloatArray:
-        weights = [smoothing[t.id] for t in self.terms] + [0.0]
-        size = sum(p.shape[0] for p in self.penalties)
-        out = np.zeros((size, size))
-        i = 0
-        for p, w in zip(self.penalties, weights, strict=True):
-            out[i:i + p.shape[0], i:i + p.shape[0]] = w * p
-            i += p.shape[0]
-        return out
-
-    def gram(self, rows: NDArray[np.bool_] | None, values: FloatArray) -> tuple[FloatArray,
-                                                                                  FloatArray]:
-        """Reduced normal matrix and right-hand side of the given readings."""
-        design = self.design if rows is None else self.design[rows]
-        data = values if rows is None else values[rows]
-        t = self.transform
-        g = (design.T @ design).toarray()
-        return t.T @ g @ t, t.T @ (design.T @ data)
-
-    @cached_property
-    def reduced_design(self) -> sparse.csr_matrix:
-        """The design in the gauge-reduced coordinates."""
-        return (self.design @ sparse.csr_matrix(self.transform)).tocsr()
-
-    def fold_grams(self, folds: IntArray, count: int,
-                   values: FloatArray) -> list[tuple[FloatArray, FloatArray]]:
-        """Reduced normal matrix and right-hand side without each fold (cached per folds)."""
-        key = id(folds)
-        cached = self._fold_cache.get(key)
-        if cached is None or cached[0] is not folds:
-            t = self.transform
-            total = (self.design.T @ self.design).toarray()
-            total_rhs = self.design.T @ values
-            grams = []
-            for f in range(count):
-                rows = self.design[folds == f]
-                inner = (rows.T @ rows).toarray()
-                grams.append((t.T @ (total - inner) @ t,
-                              t.T @ (total_rhs - rows.T @ values[folds == f])))
-            cached = (folds, grams)
-            self._fold_cache[key] = cached
-        return cached[1]
-
-    def block_slices(self) -> list[slice]:
-        out, start = [], 0
-        for t in self.transforms:
-            out.append(slice(start, start + t.shape[1]))
-            start += t.shape[1]
-        return out
-
-
-def _solve(normal: FloatArray, rhs: FloatArray) -> FloatArray:
-    scale = np.sqrt(np.maximum(np.diag(normal), 1e-300))
-    scaled = normal / scale[:, None] / scale[None, :]
-    try:
-        factor = cho_factor(scaled + 1e-12 * np.eye(scaled.shape[0]))
-    except LinAlgError:
-        raise UserError(
-            "the grid cannot separate the planar errors (a singular system): it needs at least "
-            "two nodes along each axis in each measured direction"
-        ) from None
-    return np.asarray(cho_solve(factor, rhs / scale) / scale)
-
-
-# --------------------------------------------------------------------------------------------
-# Identification
-# --------------------------------------------------------------------------------------------
+        if not self.significance >= 0:
+            raise UserError(f"significance must be a number of standard errors >= 0, got "
+                            f"{self.significance}")
 
 
 def _upper_axis(grids: Sequence[GridMeasurement], request: GridFitRequest) -> str | None:
@@ -385,61 +200,65 @@ def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
                         "names")
     lattice = common_lattice(grid_list)
     reference = request.reference_mm or (float(lattice.x_mm[0]), float(lattice.y_mm[0]))
-    for k, axis in enumerate(GRID_AXES):
-        nodes = lattice.x_mm if k == 0 else lattice.y_mm
-        if not nodes[0] - 1e-9 <= reference[k] <= nodes[-1] + 1e-9:
-            raise UserError(f"the reference {axis} = {reference[k]:g} mm lies outside the grid "
-                            f"({nodes[0]:g} to {nodes[-1]:g} mm)")
-    readings = _readings(grid_list, lattice)
+    nodes = (lattice.x_mm, lattice.y_mm)
+    for k, name in enumerate(GRID_AXES):
+        if not nodes[k][0] - 1e-9 <= reference[k] <= nodes[k][-1] + 1e-9:
+            raise UserError(f"the reference {name} = {reference[k]:g} mm lies outside the grid "
+                            f"({nodes[k][0]:g} to {nodes[k][-1]:g} mm)")
+    readings = stack_readings(grid_list, lattice)
     directions = sorted({int(d) for d in np.unique(readings.direction)})
     upper = _upper_axis(grid_list, request)
-    terms = [t for t in _TERMS if t.direction in directions]
-    if upper is not None and _YAW[upper].direction in directions:
-        terms.append(_YAW[upper])
+    terms = [t for t in TERMS if t.direction in directions]
+    if upper is not None and YAW[upper].direction in directions:
+        terms.append(YAW[upper])
     square = directions == [0, 1]
-    problem = _Problem(readings, lattice, terms, reference, len(grid_list), set(directions),
-                       square)
+    system = build_system(readings, lattice, terms, reference, len(grid_list), set(directions),
+                          square)
     solver = SurfaceSolver(lattice)
-    model = _CrossValidation(readings, solver, request, directions)
-    degrees, smoothing, surface_weight = model.choose(problem, terms)
+    cv = CrossValidation(readings, system, solver, nodes, reference, request.folds, directions)
 
-    system = problem.build(degrees)
-    normal, rhs = system.gram(None, readings.value)
-    penalty = system.penalty(smoothing)
-    reduced = _solve(normal + penalty, rhs)
+    # 1. node tables and gauges
+    normal, rhs = system.gram(readings.value)
+    reduced = solve(normal + system.penalty, rhs)
     rigid_residual = readings.value - system.reduced_design @ reduced
-    inverse = np.linalg.inv(normal + penalty)
+    inverse = np.linalg.inv(normal + system.penalty)
     edf = float(np.trace(inverse @ normal))
     sigma = float(np.sqrt(np.sum(rigid_residual**2) / max(readings.value.size - edf, 1.0)))
     covariance = sigma**2 * inverse @ normal @ inverse
-
-    functions: dict[str, ErrorFunction] = {}
-    function_std: dict[str, FloatArray] = {}
     slices = system.block_slices()
-    for index, term in enumerate(terms):
-        null = system.transforms[index]
-        basis = system.bases[term.id]
-        block = slices[index]
-        functions[term.id] = ErrorFunction(term.id, basis, null @ reduced[block])
-        sample = basis.design(problem.nodes[term.argument]) @ null
-        function_std[term.id] = np.sqrt(np.maximum(
-            np.einsum("ij,jk,ik->i", sample, covariance[block, block], sample), 0.0))
     scalars = dict(zip(system.scalar_names, reduced[slices[-1]], strict=True))
     scalar_std = dict(zip(system.scalar_names,
                           np.sqrt(np.maximum(np.diag(covariance[slices[-1], slices[-1]]), 0)),
                           strict=True))
 
+    # 2. the surface on what they leave
+    weights = cv.choose_surface(request.surface_smoothing) if request.surface else None
     residual = rigid_residual
     surface = None
-    if request.surface:
+    if weights is not None:
         surface = np.zeros((2,) + lattice.shape)
         for k in directions:
             rows = readings.direction == k
-            surface[k] = solver.as_grid(solver.fit(model.node[rows], rigid_residual[rows],
-                                                   surface_weight[k]))
+            surface[k] = solver.as_grid(solver.fit(cv.node[rows], rigid_residual[rows],
+                                                   weights[k]))
         on_node = np.where(readings.direction == 0, surface[0][readings.iy, readings.ix],
                            surface[1][readings.iy, readings.ix])
         residual = rigid_residual - on_node
+
+    # 3. each function between its nodes
+    choices = cv.choose_functions(terms, request.degrees, request.smoothing, weights,
+                                  request.sweeps, request.significance)
+    functions: dict[str, ErrorFunction] = {}
+    function_std: dict[str, FloatArray] = {}
+    for index, term in enumerate(terms):
+        values = system.node_values(reduced, index)
+        functions[term.id] = _function(term, choices[term.id], nodes[term.argument], values,
+                                       _measured(readings, term, nodes[term.argument].size),
+                                       reference[term.argument])
+        null = system.transforms[index]
+        block = slices[index]
+        function_std[term.id] = np.sqrt(np.maximum(
+            np.einsum("ij,jk,ik->i", null, covariance[block, block], null), 0.0))
 
     gauges = {
         grid.name: GridGauge(
@@ -452,29 +271,46 @@ def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
     measured = np.zeros(lattice.shape, dtype=bool)
     measured[readings.iy, readings.ix] = True
 
-    def by_direction(values: FloatArray) -> dict[str, float]:
-        return {GRID_AXES[k]: rms(values[readings.direction == k]) for k in directions}
+    def by_direction(values: FloatArray, rows: NDArray[np.bool_] | None = None
+                     ) -> dict[str, float]:
+        mask = np.ones(values.size, dtype=bool) if rows is None else rows
+        return {GRID_AXES[k]: rms(values[mask & (readings.direction == k)]) for k in directions}
 
-    cv_points = model.score(system, smoothing, surface_weight if request.surface else None,
-                            model.point_folds)
+    between: dict[str, object] = {}
+    for line_axis, label in ((1, "rows"), (0, "columns")):
+        if any(t.argument == line_axis for t in terms):
+            ours, held = cv.line_errors(terms, choices, weights, line_axis)
+            if not held.any():
+                continue
+            table = {t.id: FunctionChoice(1, min(request.smoothing), 1.0) for t in terms}
+            lookup, _ = cv.line_errors(terms, table, weights, line_axis)
+            between[label] = {"model": by_direction(ours, held),
+                              "node_values_interpolated": by_direction(lookup, held)}
     statistics = {
         "readings": int(readings.value.size),
         "grids": len(grid_list),
         "rms_um": {"rigid_body": by_direction(rigid_residual),
                    "with_surface": by_direction(residual)},
-        "cv_rms_um": {**by_direction(cv_points),
+        "cv_rms_um": {**by_direction(cv.surface_errors(weights, cv.point_folds)),
                       "method": f"{request.folds}-fold cross-validation over held-out points "
                                 "spread over the grid (the whole model refitted without them)"},
+        "cv_between_lines_rms_um": {
+            **between,
+            "method": f"{request.folds}-fold cross-validation over held-out lattice lines "
+                      "(rows, columns; the whole model refitted without them): the model's "
+                      "prediction halfway between measured lines, and the linear "
+                      "interpolation of the node values (a lookup table) for comparison"},
         "sigma_um": sigma,
         "effective_parameters": edf,
-        "uncertainty": "standard uncertainties from the scatter of the readings about the "
-                       "rigid-body terms, readings taken as independent",
+        "uncertainty": "standard uncertainties of the node values from the scatter of the "
+                       "readings about the rigid-body terms, readings taken as independent",
     }
-    choices: dict[str, dict[str, float]] = {
-        eid: {"degree": degrees[eid], "smoothing": smoothing[eid]} for eid in degrees}
-    if request.surface:
-        choices["surface"] = {f"smoothing_{GRID_AXES[k].lower()}": surface_weight[k]
-                              for k in directions}
+    choice_table: dict[str, dict[str, float]] = {
+        eid: {"degree": c.degree, "smoothing": c.smoothing, "carry": c.carry}
+        for eid, c in choices.items()}
+    if weights is not None:
+        choice_table["surface"] = {f"smoothing_{GRID_AXES[k].lower()}": weights[k]
+                                   for k in directions}
     return GridIdentification(
         lattice=lattice,
         reference_mm=(float(reference[0]), float(reference[1])),
@@ -486,13 +322,43 @@ def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
         gauges=gauges,
         surface_um=surface,
         measured_nodes=measured,
-        choices=choices,
+        choices=choice_table,
         statistics=statistics,
         residual_um=_per_grid(grid_list, readings, residual),
     )
 
 
-def _per_grid(grid_list: Sequence[GridMeasurement], readings: _Readings,
+def _measured(readings: Readings, term: Term, size: int) -> NDArray[np.bool_]:
+    """The lattice nodes along ``term``'s argument with a reading in its direction."""
+    seen = np.zeros(size, dtype=bool)
+    seen[readings.node(term)[readings.direction == term.direction]] = True
+    return seen
+
+
+def _function(term: Term, choice: FunctionChoice, nodes: FloatArray, values: FloatArray,
+              measured: NDArray[np.bool_], reference: float) -> ErrorFunction:
+    """The error function: its smooth part plus its measured nodes' departures (step 3).
+
+    The function is its node values at the measured nodes. A reference between lattice nodes
+    is one more node, where the node table is zero by the gauge, so the function stays zero
+    there too.
+    """
+    basis = smooth_basis(nodes, choice.degree)
+    coefficients = fit_smooth_part(basis, nodes[measured], values[measured],
+                                   choice.smoothing)
+    at = nodes[measured]
+    value = values[measured]
+    if np.min(np.abs(nodes - reference)) > 1e-9:
+        order = np.searchsorted(at, reference)
+        at = np.insert(at, order, reference)
+        value = np.insert(value, order, float(NodeTableBasis(tuple(nodes)).evaluate(
+            reference, values)))
+    departures = value - basis.design(at) @ coefficients
+    return ErrorFunction(term.id, NodeDepartureBasis(basis, tuple(at), choice.carry),
+                         np.concatenate([coefficients, departures]))
+
+
+def _per_grid(grid_list: Sequence[GridMeasurement], readings: Readings,
               residual: FloatArray) -> dict[str, FloatArray]:
     out = {}
     for g, grid in enumerate(grid_list):
@@ -502,80 +368,6 @@ def _per_grid(grid_list: Sequence[GridMeasurement], readings: _Readings,
             table[np.flatnonzero(np.isfinite(grid.deviation_um[:, k])), k] = residual[rows]
         out[grid.name] = table
     return out
-
-
-class _CrossValidation:
-    """K-fold cross-validation of the whole model (rigid-body terms and surface).
-
-    A candidate is scored by refitting everything without the held-out readings and predicting
-    them: held-out lattice columns for a function of x, rows for a function of y, points
-    spread over the grid for the surface.
-    """
-
-    def __init__(self, readings: _Readings, solver: SurfaceSolver, request: GridFitRequest,
-                 directions: list[int]) -> None:
-        self.readings = readings
-        self.solver = solver
-        self.request = request
-        self.directions = directions
-        self.node = solver.node(readings.ix, readings.iy)
-        k = request.folds
-        self.line_folds = {0: readings.ix % k, 1: readings.iy % k}
-        self.point_folds = (readings.ix + 2 * readings.iy) % k
-
-    def choose(self, problem: _Problem, terms: list[_Term]
-               ) -> tuple[dict[str, int], dict[str, float], dict[int, float]]:
-        request = self.request
-        degrees = {t.id: max(request.degrees) for t in terms}
-        smoothing = {t.id: min(request.smoothing) for t in terms}
-        weight = {k: min(request.surface_smoothing) for k in self.directions}
-        surface = weight if request.surface else None
-        for _ in range(request.sweeps):
-            for term in terms:
-                best: tuple[float, int, float] | None = None
-                for degree in request.degrees:
-                    system = problem.build({**degrees, term.id: degree})
-                    folds = self.line_folds[term.argument]
-                    for candidate in request.smoothing:
-                        trial = {**smoothing, term.id: candidate}
-                        score = float(np.mean(self.score(system, trial, surface, folds)**2))
-                        if best is None or score < best[0]:
-                            best = (score, degree, candidate)
-                assert best is not None
-                degrees[term.id], smoothing[term.id] = best[1], best[2]
-            if surface is not None:
-                system = problem.build(degrees)
-                for k in self.directions:
-                    rows = self.readings.direction == k
-                    scores = [float(np.mean(self.score(system, smoothing, {**weight, k: w},
-                                                       self.point_folds)[rows] ** 2))
-                              for w in request.surface_smoothing]
-                    weight[k] = request.surface_smoothing[int(np.argmin(scores))]
-                surface = weight
-        return degrees, smoothing, weight
-
-    def score(self, system: _System, smoothing: dict[str, float],
-              surface: dict[int, float] | None, folds: IntArray) -> FloatArray:
-        """Prediction error of every reading when its fold is held out."""
-        values = self.readings.value
-        grams = system.fold_grams(folds, self.request.folds, values)
-        penalty = system.penalty(smoothing)
-        error = np.zeros_like(values)
-        for f, (normal, rhs) in enumerate(grams):
-            held = folds == f
-            if not held.any():
-                continue
-            prediction = system.reduced_design @ _solve(normal + penalty, rhs)
-            if surface is not None:
-                kept = ~held
-                for k in self.directions:
-                    mine = self.readings.direction == k
-                    fit = self.solver.fit(self.node[kept & mine],
-                                          (values - prediction)[kept & mine], surface[k],
-                                          key=(id(folds), f, k, surface[k]))
-                    prediction[held & mine] += fit[self.node[held & mine]]
-            error[held] = values[held] - prediction[held]
-        return error
 
 
 def sample_positions(lattice: Lattice) -> FloatArray:

@@ -97,7 +97,8 @@ def register(subparsers: Any) -> None:
     out.add_argument("--export-csv", type=Path, metavar="OUT.csv",
                      help="write the 2-D table as a generic CSV grid")
     out.add_argument("--spacing", type=float, metavar="MM",
-                     help="node spacing of the exported table (default: the measured nodes)")
+                     help="node spacing of the exported table (default: the measured nodes; "
+                     "half the measured step holds the model's prediction between them)")
     out.add_argument("--cal-axes", metavar="X=N,Y=M",
                      help="controller axis numbers for the .cal (default: the file's AxisIndex)")
     out.add_argument("--cal-columns", choices=("X", "Y"),
@@ -205,6 +206,7 @@ def run(args: argparse.Namespace) -> int:
     }
     if args.export_cal or args.export_csv:
         table = grid_table(identification, args.spacing)
+        result["table_at_measured_nodes"] = args.spacing is None
         comments = [f"from {', '.join(Path(g.source_file).name for g in grids)} by volucal grid"]
         if args.export_csv:
             write_grid_csv(args.export_csv, table, comments)
@@ -279,6 +281,22 @@ def _range(summary: dict[str, float], unit: str, digits: int = 2) -> str:
     return f"{low:.{digits}f}–{high:.{digits}f} {unit}"
 
 
+def _between(choice: dict[str, float]) -> str:
+    """How a function goes between its nodes, in words."""
+    if choice["degree"] == 1 and choice["carry"] == 1.0:
+        return "node values interpolated linearly"
+    basis = "node table" if choice["degree"] == 1 else "cubic spline"
+    return (f"{basis} smoothed {choice['smoothing']:g}, carrying {choice['carry']:.2f} of the "
+            "nodes' departures")
+
+
+def _linear_between(identification: GridIdentification) -> bool:
+    """True when the model is the linear interpolation of its node values between them (then
+    a table at the measured nodes holds it whole)."""
+    return all(identification.choices[e]["degree"] == 1 and identification.choices[e]["carry"]
+               == 1.0 for e in identification.functions)
+
+
 def render(grids: list[GridMeasurement], identification: GridIdentification,
            result: dict[str, Any]) -> str:
     out = []
@@ -315,9 +333,8 @@ def render(grids: list[GridMeasurement], identification: GridIdentification,
         unit = "µrad" if eid[1] == "C" else "µm"
         lever = "  (lever arm x)" if eid == "ECY" else "  (lever arm y)" if eid == "ECX" else ""
         choice = identification.choices[eid]
-        basis = "node table" if choice["degree"] == 1 else "cubic B-spline"
         out.append(f"  {eid:5} {ERROR_INFO[eid].description + lever:44} {np.ptp(values):9.3f} "
-                   f"{unit:4} ± {np.max(std):.3f}   {basis}, smoothing {choice['smoothing']:g}")
+                   f"{unit:4} ± {np.max(std):.3f}   between nodes: {_between(choice)}")
     if identification.squareness_urad is not None:
         value = identification.squareness_urad
         spread = identification.squareness_std_urad or 0.0
@@ -333,6 +350,13 @@ def render(grids: list[GridMeasurement], identification: GridIdentification,
         s = identification.to_json()["surface"]["rms_um"]
         out.append("  cross-axis surface (beyond the rigid-body terms): RMS "
                    + ", ".join(f"{a} {v:.3f} µm" for a, v in s.items()))
+    between = stats.get("cv_between_lines_rms_um", {})
+    for label in ("rows", "columns"):
+        if label in between:
+            model, lookup = between[label]["model"], between[label]["node_values_interpolated"]
+            out.append(f"  held-out {label} (cross-validated): the model leaves " + ", ".join(
+                f"{a} {v:.3f}" for a, v in model.items()) + " µm, the node values interpolated "
+                "linearly " + ", ".join(f"{a} {v:.3f}" for a, v in lookup.items()) + " µm")
     out.append("  residual RMS: rigid-body terms " + ", ".join(
         f"{a} {v:.3f}" for a, v in stats["rms_um"]["rigid_body"].items()) + " µm; with the "
         "surface " + ", ".join(f"{a} {v:.3f}" for a, v in stats["rms_um"]["with_surface"].items())
@@ -355,6 +379,11 @@ def render(grids: list[GridMeasurement], identification: GridIdentification,
         for f in result["files"]:
             out.append(f"wrote {f['path']} ({f['format']}; sign: correction = −(measured − "
                        "commanded), gauge terms removed)")
+        if result.get("table_at_measured_nodes") and not _linear_between(identification):
+            step = identification.lattice.step_mm
+            out.append(f"  the table holds the measured nodes, which a controller interpolates "
+                       f"linearly; the model differs between them: --spacing "
+                       f"{min(step) / 2:g} writes it at half the measured step")
     if "project" in result:
         p = result["project"]
         out.append(f"stored {', '.join(p['groups'])} in {p['path']}"

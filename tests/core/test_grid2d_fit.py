@@ -54,8 +54,7 @@ def test_planar_errors_squareness_and_yaw_come_back_in_volucal_conventions(chain
     for eid in result.functions:
         q, value, std = result.sampled(eid)
         truth = model.functions[eid](q)
-        # within the stated standard uncertainty (5 σ: the smoothing that cross-validation
-        # chooses adds a small bias the uncertainty does not hold)
+        # within the stated standard uncertainty of the node values (least squares per line)
         assert np.all(np.abs(value - truth) <= 5 * std + 0.005), eid
         assert std[0] == pytest.approx(0.0, abs=1e-9)  # zero at the reference, by the gauge
         bound = 0.2 if eid.startswith("EC") else 0.02  # µrad, µm for 0.02 µm noise

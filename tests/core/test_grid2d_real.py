@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from volucal.core.commands.grid_cmd import compare_with_cal
 from volucal.core.compensation.export_grid2d import cal_as_table, read_aerotech_cal
+from volucal.core.grid2d import GridMeasurement, rms
 from volucal.core.grid2d_fit import identify_grid
 from volucal.core.grid2d_table import GridColumnMap, GridFormat, read_grid_table
 from volucal.core.grid2d_vendor import vendor_correction
@@ -69,6 +70,30 @@ def test_four_zones_stitched_by_least_squares_match_the_vendor_stitch(realdata):
     assert comparison["opposite_sign"]["rms_um"]["X"] < 0.1
     assert comparison["opposite_sign"]["rms_um"]["Y"] < 0.1
     assert comparison["nodes"] == 51 * 51  # the padding of zeros around it is not measured
+
+
+def test_between_the_fitted_rows_the_rows_offsets_are_not_carried(wafer):
+    """Fitted on the even nodes (10 mm), the X errors of the odd rows: each row carries an offset
+    of its own (the straightness of Y in X at a 5 mm pitch), which the cross-validation over
+    held-out rows sees does not carry to the next row; the model's smooth trend then predicts
+    the odd rows better than the node values interpolated linearly (the vendor's table)."""
+    _, grid, _ = wafer
+    ix = np.rint(grid.position_mm[:, 0] / 5.0).astype(int)
+    iy = np.rint(grid.position_mm[:, 1] / 5.0).astype(int)
+    fit = (ix % 2 == 0) & (iy % 2 == 0)
+    even = GridMeasurement("even", grid.position_mm[fit], grid.deviation_um[fit],
+                           upper_axis=grid.upper_axis)
+    result = identify_grid(even)
+    assert result.choices["EXY"]["carry"] < 0.5
+    rows = (ix % 2 == 0) & (iy % 2 == 1)
+    q = grid.position_mm[rows]
+    measured = grid.deviation_um[rows, 0] - result.gauges["even"].evaluate(q)[:, 0]
+    model = measured - result.error(q)[:, 0]
+    # the node values interpolated linearly: the mean of the fitted rows either side
+    lookup = measured - 0.5 * (result.error(q - [0.0, 5.0])[:, 0]
+                               + result.error(q + [0.0, 5.0])[:, 0])
+    assert rms(model) < rms(lookup) - 0.005
+    assert rms(model) == pytest.approx(0.523, abs=0.002)
 
 
 def test_the_generic_column_map_reads_the_vendors_matlab_input_like_the_preset(realdata):
