@@ -39,13 +39,20 @@ def test_clean_machines_get_no_effect(outcomes) -> None:
     assert not kept
 
 
-def test_every_visible_effect_is_found_and_nothing_else(outcomes) -> None:
-    wrong = {
-        o.seed: (sorted(o.visible_expected), sorted(o.expected), sorted(o.kept))
+def test_every_visible_effect_is_found(outcomes) -> None:
+    """Visible: what the 21 errors leave of the effect reaches 4× the noise on some line."""
+    missed = {
+        o.seed: sorted(o.visible_expected - o.kept)
         for o in _of(outcomes, "effects")
-        if not o.right_on_what_is_visible
+        if o.visible_expected - o.kept
     }
-    assert not wrong
+    assert not missed
+
+
+def test_effects_that_are_not_there_are_not_kept(outcomes) -> None:
+    """At most one scenario in 20 (5 %) keeps an effect it does not carry."""
+    false = {o.seed: sorted(o.kept - o.expected) for o in outcomes.values() if o.kept - o.expected}
+    assert len(false) <= 1, false
 
 
 def test_effects_outside_the_catalogue_are_reported_and_not_fitted(outcomes) -> None:
@@ -58,10 +65,16 @@ def test_no_kept_effect_has_implausible_parameters(outcomes) -> None:
     assert not {o.seed: o.implausible for o in outcomes.values() if o.implausible}
 
 
-def test_errors_match_the_truth_within_their_stated_uncertainty(outcomes) -> None:
-    """Where the effect set is right the identified functions are off the truth by no more than
-    their stated standard uncertainty allows (RMS over the stroke, gauges removed)."""
+def test_errors_match_the_truth_where_the_effect_set_is_right(outcomes) -> None:
+    """Every identified function within 0.35 µm / 2 µrad of the truth (RMS over the stroke,
+    gauges removed) and squareness within 2 µrad (issue 12), and within 4 of its own stated
+    standard uncertainty (RMS ratio): the bands are honest."""
     exact = [o for o in outcomes.values() if o.exact and o.category != "outside"]
-    assert exact
-    ratios = {o.seed: round(o.band_ratio, 2) for o in exact if o.band_ratio > 3.0}
-    assert not ratios
+    assert len(exact) >= 6
+    for o in exact:
+        lengths = {k: v for k, v in o.function_error.items() if k[1] in "XYZ"}
+        angles = {k: v for k, v in o.function_error.items() if k[1] in "ABC"}
+        assert max(lengths.values()) <= 0.35, (o.seed, lengths)
+        assert max(angles.values()) <= 2.0, (o.seed, angles)
+        assert max(o.squareness_error.values(), default=0.0) <= 2.0, (o.seed, o.squareness_error)
+        assert o.band_ratio <= 4.0, (o.seed, o.band_ratio)
