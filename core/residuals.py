@@ -22,7 +22,9 @@
    Every candidate is scored again at every step against the current model: a real effect that
    ranked second is tried again once the first is in the model. A candidate refused before is
    refitted again only once its evidence has grown (``retry_factor``).
-5. Backward pass: each kept effect is removed in turn; an effect whose removal no longer costs
+5. Refine and backward pass: after each keep, every kept cycle's period and drift's τ is
+   estimated again with the others in the model (kept when the cross-validated error drops). At
+   the end each kept effect is removed in turn; an effect whose removal no longer costs
    ``margin`` of the cross-validated error is dropped (it was superseded by a later one).
 6. Report before/after, the effects kept and refused with the reason, and what is still
    unexplained — located, sized and decomposed into what it follows (position, approach
@@ -152,8 +154,8 @@ class Finding:
 
 @dataclass(frozen=True)
 class Step:
-    """One refit of the loop: a candidate tried (``stage`` "forward") or a kept effect taken out
-    again (``stage`` "backward")."""
+    """One refit of the loop: a candidate tried (``stage`` "forward"), a kept effect's searched
+    quantity estimated again ("refine") or a kept effect taken out again ("backward", "audit")."""
 
     step: int
     finding: Finding
@@ -1074,6 +1076,18 @@ class _Fitter:
         )
         return refit, cross_validate(refit.system, self.readings, self.redundant)
 
+    def identify(self, effects: Sequence[Effect], initial: ErrorModel) -> Identification:
+        """The refit alone, without cross-validation."""
+        check(self.cancel)
+        return identify(
+            self.measurement,
+            self.options,
+            effects=effects,  # type: ignore[arg-type]
+            readings=self.readings,
+            cancel=self.cancel,
+            initial=initial,
+        )
+
 
 def _judge(
     finding: Finding,
@@ -1341,6 +1355,7 @@ def close_loop(
             break
         kept = list(chosen.refit.effects)  # type: ignore[arg-type]
         current, cv = chosen.refit, chosen.cv
+        current, cv, kept = _refine(fit, current, cv, kept, base, steps, number)
     current, cv, kept = _backward(fit, current, cv, kept, base, cv_base, options, steps, number)
     current, cv, kept = _audit(fit, current, cv, kept, base, cv_base, options, steps, number)
     report(progress, 0.95, "looking for what is still unexplained")
@@ -1381,6 +1396,97 @@ def _distinct(findings: list[Finding]) -> list[Finding]:
         if not duplicate:
             out.append(finding)
     return out
+
+
+def _refine(
+    fit: _Fitter,
+    current: Identification,
+    cv: CrossValidation,
+    kept: list[Effect],
+    base: Identification,
+    steps: list[Step],
+    number: int,
+) -> tuple[Identification, CrossValidation, list[Effect]]:
+    """Estimate again the searched quantity of every kept effect (a cycle's period, a drift's
+    time constant) with all the others in the model. Each was estimated when the model still
+    lacked the effects kept after it: two cycles of near periods on axes that share lines, or a
+    cycle next to a drift, bias each other's estimate, and a cycle whose period is off by a
+    fraction of the stroke's resolution slips its phase over the stroke and leaves structure a
+    finer function would then be kept for. The re-estimate stays within the resolution of the
+    first (it is the same effect, placed better) and replaces it only when the cross-validated
+    error says it is better."""
+    for effect in list(kept):
+        if not effect.searched or not isinstance(effect, Cyclic | ThermalDrift):
+            continue
+        rest = [e for e in kept if e is not effect]
+        without = fit.identify(rest, current.model) if rest else base
+        better = _re_estimate(effect, _Tester(without), current.model.machine)
+        if better is None:
+            continue
+        trial_kept = [better if e is effect else e for e in kept]
+        refit, cv_new = fit(trial_kept, current.model)
+        if not _metric(cv_new) < _metric(cv):
+            continue
+        index = list(refit.effects).index(better)
+        parameters = better.parameters(
+            refit.effect_parameters[index], refit.effect_covariances[index]
+        )
+        finding = Finding(better, float("nan"), 0.0, 0, 0.0, 0.0, "estimated again")
+        reason = (
+            f"{effect.label} estimated again with the other kept effects in the model: "
+            f"{_searched_value(effect)} → {_searched_value(better)}; cross-validated RMS "
+            f"{_metric(cv):.4g} → {_metric(cv_new):.4g}"
+        )
+        trial = _Trial(finding, refit, cv_new, True, reason, parameters)
+        steps.append(_step(number, trial, True, reason, current, cv, stage="refine"))
+        kept, current, cv = trial_kept, refit, cv_new
+    return current, cv, kept
+
+
+def _searched_value(effect: Effect) -> str:
+    if isinstance(effect, Cyclic):
+        return f"period {effect.period_mm:.5g} mm"
+    assert isinstance(effect, ThermalDrift)
+    return f"τ {effect.time_constant_s / 60:.4g} min"
+
+
+def _re_estimate(effect: Effect, tester: _Tester, machine: Machine) -> Effect | None:
+    """The effect with its searched quantity placed where it removes most of what the model
+    without it leaves, within one resolution step of its present value; None when that is no
+    better than the present value."""
+    from scipy.optimize import minimize_scalar
+
+    def gain(candidate: Effect) -> float:
+        f_statistic = tester.test(candidate.design(tester.ident.readings, tester.ident.model))[0]
+        return f_statistic * tester.last_dimensions
+
+    if isinstance(effect, Cyclic):
+        low, high = machine.stroke(effect.axis)
+        frequency = 1.0 / effect.period_mm
+        resolution = 1.0 / (high - low)
+        bounds = (max(frequency - resolution, 0.5 * frequency), frequency + resolution)
+
+        def make(x: float) -> Effect:
+            return replace(effect, period_mm=1.0 / x)
+
+        tolerance = 1e-3 * resolution
+    elif isinstance(effect, ThermalDrift):
+        log_tau = float(np.log(effect.time_constant_s))
+        bounds = (log_tau - 1.0, log_tau + 1.0)
+        tolerance = 1e-3
+
+        def make(x: float) -> Effect:
+            return replace(effect, time_constant_s=float(np.exp(x)))
+
+    else:
+        return None
+    now = gain(effect)
+    found = minimize_scalar(
+        lambda x: -gain(make(x)), bounds=bounds, method="bounded", options={"xatol": tolerance}
+    )
+    if not np.isfinite(found.fun) or -found.fun <= now * 1.001:
+        return None
+    return make(float(found.x))
 
 
 def _backward(
