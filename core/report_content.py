@@ -698,15 +698,37 @@ def _compensation(results: _Results, folder: Path | None,
     return Section("Compensation", tuple(blocks))
 
 
+#: A compensation file larger than this is listed without a checksum (tables are kilobytes).
+CHECKSUM_LIMIT_BYTES = 64 * 1024 * 1024
+
+
 def _files(names: Sequence[str], folder: Path | None) -> list[Block]:
+    """The run's compensation files with their checksums: only the names the run recorded, found
+    in the folder or in its format folders (one level down). The folder comes from the project,
+    and a project is data: a name that is not a plain file name, a link, a file outside the
+    folder or a huge file is listed, not read."""
+    listed = list(dict.fromkeys(names))
     if folder is None or not folder.is_dir():
-        listed = ", ".join(dict.fromkeys(names)) or "none"
-        return [Paragraph(f"Compensation files of the run: {listed}. Their folder was not at "
-                          "hand when this report was written, so no checksum is given.", "note")]
+        return [Paragraph(f"Compensation files of the run: {', '.join(listed) or 'none'}. Their "
+                          "folder was not at hand when this report was written, so no checksum "
+                          "is given.", "note")]
+    root = folder.resolve()
     rows = []
-    for file in sorted(p for p in folder.rglob("*") if p.is_file()):
-        rows.append((str(file.relative_to(folder)), f"{file.stat().st_size}",
-                     _sha256_file(file)))
+    for name in listed:
+        if Path(name).name != name or name in ("", ".", ".."):
+            rows.append((name, "", "not read: not a plain file name"))
+            continue
+        found = [folder / name] + sorted(sub / name for sub in folder.iterdir()
+                                         if sub.is_dir() and not sub.is_symlink())
+        files = [f for f in found if f.is_file() and not f.is_symlink()
+                 and f.resolve().is_relative_to(root)]
+        if not files:
+            rows.append((name, "", "not in the folder"))
+        for file in files:
+            size = file.stat().st_size
+            digest = (_sha256_file(file) if size <= CHECKSUM_LIMIT_BYTES
+                      else "not read: larger than 64 MiB")
+            rows.append((str(file.relative_to(folder)), f"{size}", digest))
     return [Table(("file", "bytes", "SHA-256"), tuple(rows), "lrl",
                   caption=f"Compensation files (folder '{folder.name}'), with the checksums to "
                           "compare with what the controller loaded.")]

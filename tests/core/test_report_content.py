@@ -105,3 +105,27 @@ def test_errors_name_the_file(tmp_path):
     Project.create().save(empty)
     with pytest.raises(UserError, match="no measured lines"):
         build_report(ReportRequest(empty))
+
+
+def test_compensation_checksums_read_only_the_files_the_run_recorded(tmp_path):
+    """The compensation folder is named by the project, and a project is data: the report reads
+    the recorded names in that folder and its format folders, never what else is there, a link
+    out of it or a name that climbs out."""
+    from volucal.core.report_content import _files
+
+    folder = tmp_path / "compensation"
+    (folder / "linuxcnc").mkdir(parents=True)
+    (folder / "linuxcnc" / "joint0_X.comp").write_text("0 0 0\n")
+    (folder / "unrecorded.bin").write_bytes(b"x" * 100)
+    secret = tmp_path / "secret.txt"
+    secret.write_text("not ours")
+    (folder / "link.comp").symlink_to(secret)
+    table = _files(["joint0_X.comp", "link.comp", "../secret.txt"], folder)[0]
+    rows = {row[0]: row for row in table.rows}
+    digest = hashlib.sha256(b"0 0 0\n").hexdigest()
+    assert rows["linuxcnc/joint0_X.comp"] == ("linuxcnc/joint0_X.comp", "6", digest)
+    assert rows["link.comp"][2] == "not in the folder"
+    assert rows["../secret.txt"][2].startswith("not read")
+    assert not any("unrecorded" in row[0] for row in table.rows)
+    secret_digest = hashlib.sha256(b"not ours").hexdigest()
+    assert all(secret_digest not in row[2] for row in table.rows)
