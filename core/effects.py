@@ -458,12 +458,20 @@ class CrossAxis(Effect):
 
 @dataclass(frozen=True, eq=False)
 class LocalDefect(Effect):
-    """A local guideway defect: a Gaussian bump of the error in ``direction`` along ``axis``."""
+    """A local guideway defect: a bump of the error in ``direction`` along ``axis``.
+
+    ``profile`` "gaussian": one Gaussian of 1 σ ``width_mm`` (one amplitude). "free": a bump of
+    unknown profile, three cubic B-splines on uniform knots spanning ``center_mm`` ± ``width_mm``
+    (value, slope and curvature zero at both ends): a dent, a worn or a raised stretch of a guideway
+    is no Gaussian, and a Gaussian fitted to another profile leaves up to 5 % of its height, which
+    a finer function would then be kept for. Three splines follow a symmetric or lopsided bump of
+    any flatness to about 1 %."""
 
     axis_name: str = "X"
     direction: str = "Z"
     center_mm: float = 0.0
     width_mm: float = 5.0
+    profile: str = "gaussian"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kind", "local")
@@ -481,36 +489,73 @@ class LocalDefect(Effect):
         return 2
 
     def _bump(self, q: FloatArray) -> FloatArray:
-        s = (q - self.center_mm) / self.width_mm
-        return np.exp(-0.5 * s * s)
+        """The profile's columns at positions ``q`` (one per fitted value)."""
+        if self.profile == "gaussian":
+            s = (q - self.center_mm) / self.width_mm
+            return np.exp(-0.5 * s * s)[:, None]
+        spacing = self.width_mm / 3.0
+        columns = [
+            _cubic_b_spline((q - (self.center_mm - self.width_mm + i * spacing)) / spacing)
+            for i in range(3)
+        ]
+        return np.stack(columns, axis=1)
+
+    def _peak(self, values: FloatArray) -> tuple[float, FloatArray]:
+        """The profile's largest deviation (signed) and its columns there."""
+        if self.profile == "gaussian":
+            return float(values[0]), np.ones(1)
+        q = np.linspace(self.center_mm - self.width_mm, self.center_mm + self.width_mm, 121)
+        columns = self._bump(q)
+        i = int(np.argmax(np.abs(columns @ values)))
+        return float(columns[i] @ values), columns[i]
 
     def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
         k = AXIS_INDEX[self.direction]
         bump = self._bump(readings.position_mm[:, AXIS_INDEX[self.axis_name]])
-        return (_displacement(readings, k) * bump)[:, None]
+        return _displacement(readings, k)[:, None] * bump
 
     def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
+        peak, at = self._peak(values)
         return {
             "direction": self.direction,
             "center_mm": self.center_mm,
             "width_mm": self.width_mm,
-            "amplitude_um": float(values[0]),
-            "amplitude_std_um": _std(covariance),
+            "profile": self.profile,
+            "amplitude_um": peak,
+            "amplitude_std_um": float(np.sqrt(max(at @ covariance @ at, 0.0)))
+            if covariance.size
+            else float("nan"),
         }
 
     def magnitude_um(self, values: FloatArray) -> float:
-        return float(abs(values[0]))
+        return abs(self._peak(values)[0])
 
     def implausible(self, values, covariance, limits):  # type: ignore[no-untyped-def]
-        if abs(values[0]) > limits.amplitude_um:
-            return f"a local defect of {values[0]:.4g} µm is beyond {limits.amplitude_um:g} µm"
+        peak = self._peak(values)[0]
+        if abs(peak) > limits.amplitude_um:
+            return f"a local defect of {peak:.4g} µm is beyond {limits.amplitude_um:g} µm"
         return None
 
     def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
         q = np.atleast_2d(positions_mm)
         e = np.zeros_like(q, dtype=float)
-        e[:, AXIS_INDEX[self.direction]] = values[0] * self._bump(q[:, AXIS_INDEX[self.axis_name]])
+        e[:, AXIS_INDEX[self.direction]] = self._bump(q[:, AXIS_INDEX[self.axis_name]]) @ values
         return e
+
+
+def _cubic_b_spline(t: FloatArray) -> FloatArray:
+    """The uniform cubic B-spline on knots 0, 1, 2, 3, 4 (zero outside [0, 4], peak 2/3 at 2)."""
+    t = np.asarray(t, dtype=float)
+    out = np.zeros_like(t)
+    for lo, poly in (
+        (0.0, lambda u: u**3),
+        (1.0, lambda u: -3 * u**3 + 12 * u**2 - 12 * u + 4),
+        (2.0, lambda u: 3 * u**3 - 24 * u**2 + 60 * u - 44),
+        (3.0, lambda u: (4 - u) ** 3),
+    ):
+        inside = (t >= lo) & (t < lo + 1.0)
+        out[inside] = poly(t[inside]) / 6.0
+    return out
 
 
 @dataclass(frozen=True, eq=False)
