@@ -783,9 +783,9 @@ LOCAL_WIDTHS_MM = (3.0, 6.0, 12.0, 24.0, 40.0)
 
 
 def _search_local(diagnosis: _Diagnosis, axis: str, step: float) -> None:
-    """A scan of Gaussian bumps along an axis, in each direction, over widths of 3–40 mm (1 σ),
-    the best refined continuously; there, the bump of free profile (three splines over about
-    ± 3 σ, :class:`LocalDefect`) is the candidate. A bump narrower than the
+    """A scan of Gaussian bumps along an axis, in each direction, over widths of 3–40 mm (1 σ);
+    at the best place the bump of free profile (three splines over ± 3 σ, :class:`LocalDefect`)
+    is refined continuously against what the model cannot absorb. A bump narrower than the
     targets' spacing (``step``) would be one target's value, not a shape of the guideway: widths
     start at the spacing, and a free profile spans at least three spacings each side."""
     narrowest = max(2.0, step if np.isfinite(step) else 2.0)
@@ -813,12 +813,11 @@ def _search_local(diagnosis: _Diagnosis, axis: str, step: float) -> None:
         if best is None:
             continue
         center, sigma = float(best[1]), float(best[2])
-        width = FREE_SPAN_SIGMAS * max(sigma, narrowest)
+        width = max(FREE_SPAN_SIGMAS * sigma, FREE_SPAN_SIGMAS * narrowest)
         if _worth_refining(diagnosis, LocalDefect(axis, direction, center, sigma), trials):
-            center, sigma = _refine_local(
-                diagnosis, axis, direction, center, sigma, (low, high), narrowest
+            center, width = _refine_local(
+                diagnosis, axis, direction, center, width, (low, high), narrowest
             )
-            width = _free_span(diagnosis, axis, direction, center, sigma, narrowest)
         diagnosis.add(
             LocalDefect(axis, direction, center, width, "free"),
             trials,
@@ -851,21 +850,21 @@ def _refine_local(
     stroke: tuple[float, float],
     narrowest: float,
 ) -> tuple[float, float]:
-    """Place and width (1 σ) of the Gaussian bump that removes the most of what the model leaves
-    (Nelder–Mead on the projected gain, from the scan's best): the place of a bump is found by its
-    simplest shape, whose one column cannot lean to either side."""
+    """Place and half-span of a free-profile bump that remove the most of what the model leaves
+    (Nelder–Mead on the projected gain, from the scan's best)."""
     from scipy.optimize import minimize
 
     tester = diagnosis.tester
     low, high = stroke
+    shortest, longest = FREE_SPAN_SIGMAS * narrowest, FREE_SPAN_SIGMAS * 60.0
 
     def loss(x: FloatArray) -> float:
         c, log_w = float(x[0]), float(x[1])
         w = float(np.exp(log_w))
-        if not (low <= c <= high and narrowest <= w <= 60.0):
+        if not (low <= c <= high and shortest <= w <= longest):
             return 0.0
-        bump = LocalDefect(axis, direction, c, w).design(diagnosis.readings, diagnosis.model)
-        return -tester.test(bump)[0]
+        effect = LocalDefect(axis, direction, c, w, "free")
+        return -tester.test(effect.design(diagnosis.readings, diagnosis.model))[0]
 
     start = np.array([center, np.log(width)])
     result = minimize(
@@ -876,36 +875,12 @@ def _refine_local(
             "xatol": 0.05,
             "fatol": 1e-3,
             "maxfev": 30,
-            "initial_simplex": [start, start + [width / 2.0, 0.0], start + [0.0, 0.4]],
+            "initial_simplex": [start, start + [width / 6.0, 0.0], start + [0.0, 0.4]],
         },
     )
     if result.fun < loss(start):
         return float(result.x[0]), float(np.exp(result.x[1]))
     return center, width
-
-
-def _free_span(
-    diagnosis: _Diagnosis, axis: str, direction: str, center: float, sigma: float, narrowest: float
-) -> float:
-    """The half-span of the free-profile bump at ``center``: ± 3 σ of the Gaussian that placed it,
-    or the span within a factor 1.5 of that which removes the most of what the model leaves."""
-    from scipy.optimize import minimize_scalar
-
-    tester = diagnosis.tester
-    start = FREE_SPAN_SIGMAS * max(sigma, narrowest)
-
-    def gain(log_span: float) -> float:
-        effect = LocalDefect(axis, direction, center, float(np.exp(log_span)), "free")
-        return tester.test(effect.design(diagnosis.readings, diagnosis.model))[0]
-
-    lowest = np.log(max(start / 1.5, FREE_SPAN_SIGMAS * narrowest))
-    found = minimize_scalar(
-        lambda x: -gain(x),
-        bounds=(lowest, np.log(start * 1.5)),
-        method="bounded",
-        options={"xatol": 0.02},
-    )
-    return float(np.exp(found.x)) if -found.fun > gain(np.log(start)) else start
 
 
 # --------------------------------------------------------------------------------------------
