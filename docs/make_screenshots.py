@@ -26,7 +26,7 @@ DOCS = Path(__file__).resolve().parent
 REPO = DOCS.parent
 DEFAULT_SIZE = (1400, 900)
 VIEWS = ("machine", "measurement", "identification", "loop", "sensitivity", "compensation",
-         "comparison")
+         "comparison", "thermal")
 
 
 def demo_project(folder: Path) -> Path:
@@ -115,6 +115,16 @@ def take(out: Path, project: Path | None = None) -> list[Path]:
     compensation.run_preview()
     wait_idle(compensation)
     window.open_remeasurement(after)
+    # a thermal record beside the geometric lines: a simulated 12 h warm-up (spindle and column
+    # sensors and four that do not drive the error), modelled as `volucal thermal` does
+    from volucal.core.thermal_fit import ThermalFitRequest, fit_thermal
+    from volucal.core.thermal_sim import SimulatedThermalTest, simulate_thermal_test
+    from volucal.core.thermal_store import KIND, thermal_tree
+
+    record = simulate_thermal_test(SimulatedThermalTest(hours=12, seed=3), name="warm-up")
+    window.document.put_results("import a thermal record", {
+        (KIND, "warm-up"): thermal_tree(record, [fit_thermal(ThermalFitRequest(record))])})
+    window.views["thermal"].select("warm-up")
     window.tree.choose("measurements", "x_linear")
     identification = window.views["identification"]
     window.show_view("identification")
