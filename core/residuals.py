@@ -1107,15 +1107,7 @@ class _Fitter:
     def __call__(
         self, effects: Sequence[Effect], initial: ErrorModel
     ) -> tuple[Identification, CrossValidation]:
-        check(self.cancel)
-        refit = identify(
-            self.measurement,
-            self.options,
-            effects=effects,  # type: ignore[arg-type]
-            readings=self.readings,
-            cancel=self.cancel,
-            initial=initial,
-        )
+        refit = self.identify(effects, initial)
         return refit, cross_validate(refit.system, self.readings, self.redundant)
 
     def identify(self, effects: Sequence[Effect], initial: ErrorModel) -> Identification:
@@ -1471,18 +1463,16 @@ def _refine(
         refit, cv_new = fit(trial_kept, current.model)
         if not _metric(cv_new) < _metric(cv):
             continue
-        index = list(refit.effects).index(better)
-        parameters = better.parameters(
-            refit.effect_parameters[index], refit.effect_covariances[index]
-        )
-        finding = Finding(better, float("nan"), 0.0, 0, 0.0, 0.0, "estimated again")
         reason = (
             f"{effect.label} estimated again with the other kept effects in the model: "
             f"{_searched_value(effect)} → {_searched_value(better)}; cross-validated RMS "
             f"{_metric(cv):.4g} → {_metric(cv_new):.4g}"
         )
-        trial = _Trial(finding, refit, cv_new, True, reason, parameters)
-        steps.append(_step(number, trial, True, reason, current, cv, stage="refine"))
+        steps.append(
+            _later_step(
+                number, better, refit, (refit, cv_new), True, reason, (current, cv), "refine"
+            )
+        )
         kept, current, cv = trial_kept, refit, cv_new
     return current, cv, kept
 
@@ -1565,18 +1555,16 @@ def _backward(
         cost, effect, refit, cv_new, with_it, without = min(costs, key=lambda c: c[0])
         if cost >= options.margin:
             break
-        index = list(current.effects).index(effect)
-        finding = Finding(effect, float("nan"), 0.0, 0, 0.0, 0.0, "backward pass")
-        parameters = effect.parameters(
-            current.effect_parameters[index], current.effect_covariances[index]
-        )
         reason = (
             f"removed in the backward pass: without it the cross-validated RMS is "
             f"{with_it:.4g} → {without:.4g} ({100 * cost:+.1f} %), less than the "
             f"{100 * options.margin:.0f} % margin; a later effect explains what it did"
         )
-        trial = _Trial(finding, refit, cv_new, False, reason, parameters)
-        steps.append(_step(number, trial, False, reason, current, cv, stage="backward"))
+        steps.append(
+            _later_step(
+                number, effect, current, (refit, cv_new), False, reason, (current, cv), "backward"
+            )
+        )
         kept = [e for e in kept if e is not effect]
         current, cv = refit, cv_new
     return current, cv, kept
@@ -1614,17 +1602,37 @@ def _audit(
         _, effect, why = max(failures, key=lambda f: f[0])
         rest = [e for e in kept if e is not effect]
         refit, cv_new = (base, cv_base) if not rest else fit(rest, current.model)
-        index = list(current.effects).index(effect)
-        parameters = effect.parameters(
-            current.effect_parameters[index], current.effect_covariances[index]
-        )
-        finding = Finding(effect, float("nan"), 0.0, 0, 0.0, 0.0, "final audit")
         reason = f"removed at the end: {why}"
-        trial = _Trial(finding, refit, cv_new, False, reason, parameters)
-        steps.append(_step(number, trial, False, reason, current, cv, stage="audit"))
+        steps.append(
+            _later_step(
+                number, effect, current, (refit, cv_new), False, reason, (current, cv), "audit"
+            )
+        )
         kept = rest
         current, cv = refit, cv_new
     return current, cv, kept
+
+
+def _later_step(
+    number: int,
+    effect: Effect,
+    fitted: Identification,
+    trial_fit: tuple[Identification, CrossValidation],
+    kept: bool,
+    reason: str,
+    before: tuple[Identification, CrossValidation],
+    stage: str,
+) -> Step:
+    """A step of the refine, backward or audit stage: ``effect`` with its parameters as fitted in
+    ``fitted``, the fit tried (``trial_fit``) and the model it was compared with (``before``)."""
+    index = list(fitted.effects).index(effect)
+    parameters = effect.parameters(
+        fitted.effect_parameters[index], fitted.effect_covariances[index]
+    )
+    where = {"refine": "estimated again", "backward": "backward pass", "audit": "final audit"}
+    finding = Finding(effect, float("nan"), 0.0, 0, 0.0, 0.0, where[stage])
+    trial = _Trial(finding, *trial_fit, kept, reason, parameters)
+    return _step(number, trial, kept, reason, *before, stage=stage)
 
 
 def _wald(identification: Identification, index: int) -> float:
