@@ -43,7 +43,7 @@ def vendor_file() -> int:
         return 0
     path = shared / "aerotech_flatness_angular" / "643630-1-1-X-test_Flatness.dat"
     fmt = TableFormat(columns=ColumnMap(deviation="Flat"), deviation_unit="mm",
-                      data_marker=":START", environment=False)
+                      position_unit="mm", data_marker=":START", environment=False)
     data = read_table(path, fmt).data
     x, y = data.targets_mm, data.deviations[0] * 1e3
     result = evaluate_straightness(x, y)

@@ -50,7 +50,8 @@ def register(subparsers: Any) -> None:
                         "(um, nm, mm, inch; urad, mrad, arcsec, deg); required then, and it must "
                         "agree with a unit the file states")
     parser.add_argument("--position-unit", help="position unit of a table that does not state "
-                        "it (mm, um, m, inch; default mm, the plan.toml contract)")
+                        "it (mm, um, m, inch); required then (a plan's tables are in mm, the "
+                        "plan.toml contract)")
     parser.add_argument("--columns", help="column map of a table, e.g. "
                         "position=Position,deviation=Flat (names or 1-based numbers)")
     parser.add_argument("--data-marker", help="a table's data start after this line (e.g. :START)")

@@ -302,11 +302,14 @@ def _read_text(
             raise head.error(f"the {key} unit is declared as {declared_raw!r} but the header "
                              f"{shown[key]} says {from_header!r}; correct one of them",
                              header_line)
-        unit = declared or from_header or ("mm" if key == "position" else None)
+        unit = declared or from_header
+        if unit is None and key == "position":
+            unit = fmt.position_unit_default
         if unit is None:
+            example = {"time": "s", "position": "mm"}.get(key, "um")
             raise head.error(f"the {key} column {shown[key]} has no unit and volucal does not "
                              f"assume one: give {key}_unit in the plan's [[line]] or write it "
-                             f"in the header, e.g. {key}_{'s' if key == 'time' else 'um'}",
+                             f"in the header, e.g. {key}_{example}",
                              header_line)
         if unit not in tables[key]:
             raise head.error(f"{key} unit {unit!r} is not supported; use one of "

@@ -592,6 +592,8 @@ def _table_format(reader: Mapping[str, object], deviation_unit: str | None) -> T
     return TableFormat(
         columns=ColumnMap.from_mapping(columns) if isinstance(columns, dict) else ColumnMap(),
         position_unit=reader.get("position_unit"),  # type: ignore[arg-type]
+        # plan.toml states lengths in mm: a position column without a unit is in mm by the plan
+        position_unit_default="mm",
         deviation_unit=deviation_unit,
         time_unit=reader.get("time_unit"),  # type: ignore[arg-type]
         pressure_unit=reader.get("pressure_unit"),  # type: ignore[arg-type]

@@ -17,9 +17,9 @@ position and deviation are required:
 
 **Units.** Every quantity read has a unit: from the header (``Flat [mm]``, ``(mm)``, a ``_mm``
 suffix) or declared by the format (the plan's ``deviation_unit``, ``pressure_unit``, …, or the
-command line); both given must agree. A deviation, time, temperature or pressure column without a
-unit is refused with a message asking for one. Positions are mm unless the header or
-``position_unit`` says otherwise: that is the plan.toml contract (lengths in mm). A deviation
+command line); both given must agree. A column without a unit is refused with a message asking
+for one — except positions in a table a plan names: plan.toml states lengths in mm, so there they
+are mm unless the header or ``position_unit`` says otherwise. A deviation
 column named like an angle (yaw, pitch, roll) or a preamble ``TestType : Angular`` refuses a length
 unit, and ``TestType : Flatness`` (or Linear, Straightness) refuses an angle.
 
@@ -120,9 +120,12 @@ _UNIT_FLAG = {"deviation": "--unit", "position": "--position-unit"}
 class TableFormat:
     """How to read a table: its columns, units and where the data start.
 
-    A unit None means the format does not declare it: the header must then carry it (positions:
-    mm, the plan contract). ``delimiter`` None detects comma, semicolon, tab or whitespace from the
-    header. ``data_marker`` is a line after which the data start (e.g. ``":START"``).
+    A unit None means the format does not declare it: the header must then carry it.
+    ``position_unit_default`` is the unit of positions when neither says: plan.toml states lengths
+    in mm, so a table a plan names has mm there; a table read alone has none, and a position
+    column without a unit is then refused like any other. ``delimiter`` None detects comma,
+    semicolon, tab or whitespace from the header. ``data_marker`` is a line after which the data
+    start (e.g. ``":START"``).
     ``environment`` False leaves the environment columns unread unless they are mapped (a
     command that does not use them need not ask for their units).
     """
@@ -138,6 +141,7 @@ class TableFormat:
     comment: str = "#"
     target_tolerance_mm: float = 1e-3
     environment: bool = True
+    position_unit_default: str | None = None
 
     def __post_init__(self) -> None:
         if not self.comment:
@@ -223,7 +227,7 @@ def _units(
             )
         unit = declared or from_header
         if unit is None and key == "position":
-            unit = "mm"
+            unit = fmt.position_unit_default
         if unit is not None and unit not in _UNIT_TABLES[key]:
             raise source.error(
                 f"{DESCRIPTION[key]} unit {unit!r} of column {shown[key]} is not supported; use "
@@ -237,6 +241,7 @@ def _units(
 
 def _missing_unit(key: str, column: str) -> str:
     examples = {
+        "position": "mm, um or inch",
         "deviation": "um, nm, mm or inch for lengths; urad, mrad, arcsec or deg for angles",
         "time": "s, ms, min or h",
         "pressure": "Pa, hPa, mbar, kPa, mmHg or inHg",

@@ -84,6 +84,8 @@ class Seed:
 
 
 def _table(**options: object) -> Callable[[Path], object]:
+    # as a plan reads a table: plan.toml states lengths in mm
+    options.setdefault("position_unit_default", "mm")
     fmt = TableFormat(**options)  # type: ignore[arg-type]
     return lambda path: read_table(path, fmt)
 

@@ -110,8 +110,13 @@ def test_iso230_2_text_table(capsys):
 
 def test_iso230_2_straightness_of_a_vendor_file(realdata, capsys):
     path = realdata / "aerotech_flatness_angular" / "643630-1-1-X-test_Flatness.dat"
-    assert main(["iso230-2", str(path), "--columns", "position=Position,deviation=Flat",
-                 "--unit", "mm", "--data-marker", ":START", "--straightness", "--json"]) == 0
+    # the file states no unit for its positions: volucal asks for one rather than assume mm
+    args = ["iso230-2", str(path), "--columns", "position=Position,deviation=Flat", "--unit", "mm",
+            "--data-marker", ":START", "--straightness"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'Position' has no unit" in err and "--position-unit" in err
+    assert main([*args, "--position-unit", "mm", "--json"]) == 0
     entry = json.loads(capsys.readouterr().out)["lines"][0]
     assert round(entry["straightness_ls_um"], 3) == 1.444
     assert round(entry["straightness_mz_um"], 3) == 1.418
@@ -121,7 +126,7 @@ def test_iso230_2_straightness_of_a_vendor_file(realdata, capsys):
     assert values["minimum_zone_um"] == entry["straightness_mz_um"]
     assert values["methods"]["minimum_zone"] == "minimum zone (ISO 230-1)"
     assert main(["iso230-2", str(path), "--columns", "deviation=Flat", "--unit", "mm",
-                 "--data-marker", ":START", "--straightness"]) == 0
+                 "--position-unit", "mm", "--data-marker", ":START", "--straightness"]) == 0
     out = capsys.readouterr().out
     assert re.search(r"least-squares reference line \(ISO 230-1\)\s+1\.444", out)
     assert re.search(r"minimum zone \(ISO 230-1\)\s+1\.418", out)
@@ -147,7 +152,8 @@ def test_iso230_2_straightness_lines_of_a_plan_always_get_both_methods(plan, cap
 def test_iso230_2_refuses_a_table_without_a_unit(realdata, capsys):
     """Yaw/pitch/roll columns without a unit were read as µm and labelled linear."""
     path = realdata / "aerotech_flatness_angular" / "643630-1-1-X-test_Angular.dat"
-    args = ["iso230-2", str(path), "--data-marker", ":START", "--columns", "deviation=Yaw"]
+    args = ["iso230-2", str(path), "--data-marker", ":START", "--columns", "deviation=Yaw",
+            "--position-unit", "mm"]
     assert main(args) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "'Yaw' has no unit" in err and "--unit" in err

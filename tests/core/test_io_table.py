@@ -7,15 +7,34 @@ from pathlib import Path
 import numpy as np
 import pytest
 from volucal.core.io.rtl import reading_times
-from volucal.core.io.table import ColumnMap, TableFormat, cluster_targets, read_table, write_table
+from volucal.core.io.table import ColumnMap, cluster_targets, read_table, write_table
+from volucal.core.io.table import TableFormat as ReadAlone
 from volucal.core.measurement import LineData
 from volucal.core.userror import FormatError
+
+
+def TableFormat(**options: object) -> ReadAlone:  # noqa: N802
+    """The reader as a plan sets it up: plan.toml states lengths in mm, so a position column
+    without a unit is in mm (a table read alone has no such default: see the test below)."""
+    options.setdefault("position_unit_default", "mm")
+    return ReadAlone(**options)  # type: ignore[arg-type]
+
+
+def test_a_table_read_alone_asks_for_the_unit_of_its_positions(tmp_path):
+    path = tmp_path / "t.csv"
+    path.write_text("position,deviation_um\n0,1\n5,2\n", encoding="utf-8")
+    with pytest.raises(FormatError) as error:
+        read_table(path, ReadAlone())
+    message = str(error.value)
+    assert str(path) in message and "line 1" in message
+    assert "'position' has no unit" in message and "position_unit" in message
+    assert read_table(path, ReadAlone(position_unit="inch")).data.targets_mm[1] == 5 * 25.4
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "io"
 
 
 def test_csv_with_header_run_direction_time_and_air():
-    table = read_table(DATA / "y_straightness_hand.csv")
+    table = read_table(DATA / "y_straightness_hand.csv", TableFormat())
     data = table.data
     assert table.unit == "um"  # from the header name deviation_um
     np.testing.assert_array_equal(data.targets_mm, [0, 100, 200, 300, 400])
@@ -63,7 +82,7 @@ def test_iso_time_column_sets_the_start(tmp_path):
     path = tmp_path / "t.csv"
     path.write_text("position,deviation_um,time\n0,0,2020-01-01T00:00:00Z\n"
                     "5,1,2020-01-01T00:00:30Z\n")
-    data = read_table(path).data
+    data = read_table(path, TableFormat()).data
     assert data.start_time == datetime(2020, 1, 1, tzinfo=UTC).timestamp()
     np.testing.assert_array_equal(data.times_s, [[0, 30]])
 
@@ -163,7 +182,7 @@ def test_round_trip(tmp_path):
                     air_temp_c=data.air_temp_c, material_temp_c=data.material_temp_c)
     path = tmp_path / "line.csv"
     write_table(path, data)
-    back = read_table(path).data
+    back = read_table(path, TableFormat()).data
     np.testing.assert_array_equal(back.targets_mm, data.targets_mm)
     np.testing.assert_array_equal(back.deviations, data.deviations)
     np.testing.assert_array_equal(back.run_direction, data.run_direction)
@@ -310,7 +329,7 @@ def test_a_small_table_cannot_claim_a_huge_grid(tmp_path):
     path.write_text("position,deviation_um,run\n" + rows + "\n")
     with pytest.raises(FormatError, match="3,000 runs × 3,000 targets = 9,000,000 readings, "
                        "beyond the 2,000,000") as info:
-        read_table(path)
+        read_table(path, TableFormat())
     assert info.value.line == 3001
 
 
@@ -327,8 +346,8 @@ def test_rows_may_leave_out_empty_trailing_cells_with_a_delimiter(tmp_path, real
     csv = tmp_path / "short.csv"
     csv.write_text("position,deviation_um,note\n0,1\n5\n")
     with pytest.raises(FormatError, match="expected 3 fields") as info:
-        read_table(csv)
+        read_table(csv, TableFormat())
     assert info.value.line == 3
     csv.write_text("position deviation_um note\n0 1\n5 2\n")
     with pytest.raises(FormatError, match="has 3 name"):
-        read_table(csv)
+        read_table(csv, TableFormat())

@@ -114,7 +114,8 @@ def test_straightness_matches_the_vendor_report(realdata):
     for this flatness file."""
     path = realdata / "aerotech_flatness_angular" / "643630-1-1-X-test_Flatness.dat"
     fmt = TableFormat(columns=ColumnMap(position="Position", deviation="Flat"),
-                      deviation_unit="mm", data_marker=":START", environment=False)
+                      deviation_unit="mm", position_unit="mm", data_marker=":START",
+                      environment=False)
     data = read_table(path, fmt).data
     least_squares, end_point = straightness(data.targets_mm, data.deviations[0] * 1e3)
     assert round(least_squares, 3) == 1.444
@@ -169,7 +170,7 @@ def test_minimum_zone_of_the_vendor_file(realdata):
     zone 1.418 µm, within 0.001 µm of the linear-programming zone."""
     path = realdata / "aerotech_flatness_angular" / "643630-1-1-X-test_Flatness.dat"
     fmt = TableFormat(columns=ColumnMap(deviation="Flat"), deviation_unit="mm",
-                      data_marker=":START", environment=False)
+                      position_unit="mm", data_marker=":START", environment=False)
     data = read_table(path, fmt).data
     result = evaluate_straightness(data.targets_mm, data.deviations[0] * 1e3)
     assert round(result.least_squares, 3) == 1.444
