@@ -461,11 +461,13 @@ class LocalDefect(Effect):
     """A local guideway defect: a bump of the error in ``direction`` along ``axis``.
 
     ``profile`` "gaussian": one Gaussian of 1 σ ``width_mm`` (one amplitude). "free": a bump of
-    unknown profile, three cubic B-splines on uniform knots spanning ``center_mm`` ± ``width_mm``
+    unknown profile, five cubic B-splines on uniform knots spanning ``center_mm`` ± ``width_mm``
     (value, slope and curvature zero at both ends): a dent, a worn or a raised stretch of a guideway
     is no Gaussian, and a Gaussian fitted to another profile leaves up to 5 % of its height, which
-    a finer function would then be kept for. Three splines follow a symmetric or lopsided bump of
-    any flatness to about 1 %."""
+    a finer function would then be kept for. Five splines follow a smooth symmetric or lopsided
+    bump to about 1 % of its height and a triangular one to about 5 % (three: 1–2 % and 8 %; on the
+    suites of benchmarks/bench_loop_suite.py five did better on one generator and as well on the
+    other)."""
 
     axis_name: str = "X"
     direction: str = "Z"
@@ -493,10 +495,10 @@ class LocalDefect(Effect):
         if self.profile == "gaussian":
             s = (q - self.center_mm) / self.width_mm
             return np.exp(-0.5 * s * s)[:, None]
-        spacing = self.width_mm / 3.0
+        spacing = 2.0 * self.width_mm / (FREE_SPLINES + 3)
         columns = [
             _cubic_b_spline((q - (self.center_mm - self.width_mm + i * spacing)) / spacing)
-            for i in range(3)
+            for i in range(FREE_SPLINES)
         ]
         return np.stack(columns, axis=1)
 
@@ -541,6 +543,10 @@ class LocalDefect(Effect):
         e = np.zeros_like(q, dtype=float)
         e[:, AXIS_INDEX[self.direction]] = self._bump(q[:, AXIS_INDEX[self.axis_name]]) @ values
         return e
+
+
+#: Cubic B-splines of a free-profile local defect.
+FREE_SPLINES = 5
 
 
 def _cubic_b_spline(t: FloatArray) -> FloatArray:

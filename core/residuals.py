@@ -784,7 +784,7 @@ LOCAL_WIDTHS_MM = (3.0, 6.0, 12.0, 24.0, 40.0)
 
 def _search_local(diagnosis: _Diagnosis, axis: str, step: float) -> None:
     """A scan of Gaussian bumps along an axis, in each direction, over widths of 3–40 mm (1 σ);
-    at the best place the bump of free profile (three splines over ± 3 σ, :class:`LocalDefect`)
+    at the best place the bump of free profile (five splines over ± 3 σ, :class:`LocalDefect`)
     is refined continuously against what the model cannot absorb. A bump narrower than the
     targets' spacing (``step``) would be one target's value, not a shape of the guideway: widths
     start at the spacing, and a free profile spans at least three spacings each side."""

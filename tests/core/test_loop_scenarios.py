@@ -43,7 +43,7 @@ def test_every_visible_effect_is_found_or_reported(outcomes) -> None:
     """Visible: what the 21 errors leave of the effect reaches 4× the noise on some line. The loop
     refuses a drift, a defect or a surface that only one line shows beyond what the 21 errors
     absorb (one line cannot tell it from its own set-up), so a miss is allowed once in the ten
-    (the suite measures 92 % right on what is visible), and never silently: what it leaves is
+    (the suite measures 96 % right on what is visible), and never silently: what it leaves is
     reported as unexplained."""
     missed = {
         o.seed: sorted(o.visible_expected - o.kept)
