@@ -20,13 +20,12 @@ from __future__ import annotations
 import atexit
 import multiprocessing
 import threading
-import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from volucal.core.progress import Cancelled, CancelToken, ProgressCallback
+from volucal.core.progress import Cancelled, CancelToken, ProgressCallback, throttled
 from volucal.core.userror import UserError
 
 #: Minimum time between two progress messages of a worker (s).
@@ -72,14 +71,10 @@ def _serve(connection: Any, cancel_event: Any) -> None:
             return
         if job is None:
             return
-        last = 0.0
-
-        def progress(fraction: float, message: str) -> None:
-            nonlocal last
-            now = time.monotonic()
-            if now - last >= PROGRESS_INTERVAL_S or fraction >= 1.0:
-                last = now
-                connection.send(("progress", float(fraction), str(message)))
+        progress = throttled(
+            lambda fraction, message: connection.send(("progress", fraction, message)),
+            PROGRESS_INTERVAL_S,
+        )
 
         try:
             result = job(progress, token)

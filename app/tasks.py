@@ -25,7 +25,7 @@ from typing import Any
 
 import shiboken6
 from PySide6.QtCore import QObject, QThread, Signal
-from volucal.core.progress import Cancelled, CancelToken, ProgressCallback
+from volucal.core.progress import Cancelled, CancelToken, ProgressCallback, throttled
 from volucal.core.userror import UserError
 
 from . import engine
@@ -55,14 +55,7 @@ class _WorkerThread(QThread):
         self._token = token
 
     def run(self) -> None:
-        last = 0.0
-
-        def progress(fraction: float, message: str) -> None:
-            nonlocal last
-            now = time.monotonic()
-            if now - last >= PROGRESS_INTERVAL_S or fraction >= 1.0:
-                last = now
-                self.progressed.emit(float(fraction), str(message))
+        progress = throttled(self.progressed.emit, PROGRESS_INTERVAL_S)
 
         try:
             if isinstance(self._call, ProcessCall):

@@ -32,9 +32,8 @@ import numpy as np
 from .grid2d import GridLayoutError, GridMeasurement, common_lattice, missing_nodes
 from .io.source import SourceText, parse_float
 from .io.table import detect_delimiter, split_fields
+from .io.table_layout import ColumnRef, column_refs
 from .io.units import DEVIATION_FACTOR, POSITION_FACTOR, PRESSURE_FACTOR_KPA, normalise_unit
-
-ColumnRef = str | int | None
 
 #: Pressure units (to kPa). Aerotech's Accuracy2D files give mmHg.
 PRESSURE_TO_KPA = {**PRESSURE_FACTOR_KPA, "mmhg": 0.1333223874, "torr": 0.1333223684,
@@ -77,19 +76,8 @@ class GridColumnMap:
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, object]) -> GridColumnMap:
         """From ``{"x": "X [mm]", "deviation_x": 3, …}``; unknown keys raise ValueError."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(mapping) - known)
-        if unknown:
-            raise ValueError(f"unknown grid column key(s) {', '.join(unknown)}; use "
-                             f"{', '.join(f.name for f in fields(cls))}")
-        values: dict[str, ColumnRef] = {}
-        for key, value in mapping.items():
-            if isinstance(value, bool) or not isinstance(value, str | int):
-                raise ValueError(f"column {key}: expected a header name or a column number")
-            if isinstance(value, int) and value < 1:
-                raise ValueError(f"column {key}: column numbers start at 1, got {value}")
-            values[key] = value
-        return cls(**values)  # type: ignore[arg-type]
+        known = [f.name for f in fields(cls)]
+        return cls(**column_refs(mapping, known, "grid column"))  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ and a step can run on any thread.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 
 ProgressCallback = Callable[[float, str], None]
@@ -44,3 +45,18 @@ def report(progress: ProgressCallback | None, fraction: float, message: str) -> 
 def check(cancel: CancelToken | None) -> None:
     if cancel is not None:
         cancel.check()
+
+
+def throttled(send: ProgressCallback, interval_s: float) -> ProgressCallback:
+    """``send`` at most once per ``interval_s`` (and always at completion): a computation may
+    report thousands of times a second, more than a display or a pipe should carry."""
+    last = 0.0
+
+    def progress(fraction: float, message: str) -> None:
+        nonlocal last
+        now = time.monotonic()
+        if now - last >= interval_s or fraction >= 1.0:
+            last = now
+            send(float(fraction), str(message))
+
+    return progress

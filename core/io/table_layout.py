@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import csv
 import re
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 
 from .source import BLANKS, SourceText, is_number
@@ -103,22 +104,27 @@ class ColumnMap:
     def from_mapping(cls, mapping: dict[str, object]) -> ColumnMap:
         """From a plan's ``columns = {position = "X", deviation = 2, ...}``; unknown keys raise
         ValueError naming them."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(mapping) - known)
-        if unknown:
-            raise ValueError(
-                f"unknown column key(s) {', '.join(unknown)}; use {', '.join(sorted(known))}"
-            )
-        values: dict[str, ColumnRef] = {}
-        for key, value in mapping.items():
-            if isinstance(value, bool) or not isinstance(value, str | int):
-                raise ValueError(f"column {key}: expected a header name or a column number")
-            if isinstance(value, int) and value < 1:
-                raise ValueError(f"column {key}: column numbers start at 1, got {value}")
-            if isinstance(value, str) and not value.strip():
-                raise ValueError(f"column {key}: the name is empty")
-            values[key] = value
-        return cls(**values)  # type: ignore[arg-type]
+        return cls(**column_refs(mapping, sorted(f.name for f in fields(cls)), "column"))
+
+
+def column_refs(mapping: Mapping[str, object], known: Sequence[str], what: str
+                ) -> dict[str, ColumnRef]:
+    """A column map's values checked: each key one of ``known``, each value a header name or a
+    1-based column number; otherwise ValueError naming the key (``what``: "column", "grid
+    column")."""
+    unknown = sorted(set(mapping) - set(known))
+    if unknown:
+        raise ValueError(f"unknown {what} key(s) {', '.join(unknown)}; use {', '.join(known)}")
+    values: dict[str, ColumnRef] = {}
+    for key, value in mapping.items():
+        if isinstance(value, bool) or not isinstance(value, str | int):
+            raise ValueError(f"column {key}: expected a header name or a column number")
+        if isinstance(value, int) and value < 1:
+            raise ValueError(f"column {key}: column numbers start at 1, got {value}")
+        if isinstance(value, str) and not value.strip():
+            raise ValueError(f"column {key}: the name is empty")
+        values[key] = value
+    return values
 
 
 @dataclass
