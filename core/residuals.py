@@ -552,7 +552,7 @@ def diagnose(
     warnings: list[str] = []
     excluded_kind_axis = {(k, a) for k, a, _ in exclude}
     moving = _moving_axes(readings)
-    step = _typical_step(readings)
+    steps = _target_steps(readings)
     for axis in AXES:
         low, high = machine.stroke(axis)
         ref = machine.reference(axis)
@@ -562,9 +562,10 @@ def diagnose(
         if moving[axis]:
             order = 1 if ("reversal", axis) in excluded_kind_axis else 0
             diagnosis.add(Reversal(axis, order, (low, high)))
-        warnings += _cyclic_candidates(diagnosis, axis, ref, step[axis], high - low)
+        typical, finest = steps[axis]
+        warnings += _cyclic_candidates(diagnosis, axis, ref, finest, high - low)
         _thermal_candidates(diagnosis, axis, ref, options.time_constants_s)
-        _search_local(diagnosis, axis, step[axis])
+        _search_local(diagnosis, axis, typical)
     for direction in AXES:
         for i, along in enumerate(AXES):
             for across in AXES[i + 1 :]:
@@ -598,16 +599,19 @@ def _corrected(log10_p: float, trials: int) -> float:
     return min(0.0, log10_p + float(np.log10(max(trials, 1))))
 
 
-def _typical_step(readings: Readings) -> dict[str, float]:
+def _target_steps(readings: Readings) -> dict[str, tuple[float, float]]:
+    """Per axis, the typical and the finest spacing of the targets along it (mm): the median and
+    the least of the lines' median steps, each projected on the axis (a diagonal's targets every
+    10.6 mm are 7.5 mm apart along each of its axes)."""
     out = {}
     for axis in AXES:
         k = AXIS_INDEX[axis]
         steps = [
-            float(np.median(np.diff(line.data.targets_mm)) * abs(line.spec.direction[k]))
+            float(np.median(np.diff(line.data.targets_mm))) * abs(line.spec.direction[k])
             for line in readings.lines
             if abs(line.spec.direction[k]) > 1e-6 and len(line.data.targets_mm) > 1
         ]
-        out[axis] = float(np.median(steps)) if steps else float("nan")
+        out[axis] = (float(np.median(steps)), float(np.min(steps))) if steps else (np.nan, np.nan)
     return out
 
 
@@ -615,7 +619,11 @@ def _cyclic_candidates(
     diagnosis: _Diagnosis, axis: str, ref: float, step: float, span: float
 ) -> list[str]:
     """The screw lead's cycle (with its second harmonic) and the strongest cycle of a
-    least-squares periodogram along the axis; warnings where the targets cannot reveal one."""
+    least-squares periodogram along the axis; warnings where the targets cannot reveal one.
+
+    ``step`` is the finest spacing of the lines along the axis: a cycle that the finest line
+    samples twice a period is told from its aliases by that line, whatever coarser lines beside
+    it alias it to (a 10.5 mm cycle seen by lines every 3, 4 and 5.4 mm is no 11.3 mm one)."""
     warnings = []
     machine = diagnosis.model.machine
     lead = machine.screw_lead_mm.get(axis)
@@ -952,6 +960,75 @@ def unexplained(
                 correlates_with=shares,
             )
         )
+    reported = {u.where.split(" at ")[0] for u in out}
+    out += [u for u in _unsteady(identification, alpha) if u.where.split(",")[0] not in reported]
+    return out
+
+
+#: A line repeats worse than its peers when its run-to-run spread is this many times theirs.
+PEER_SPREAD_RATIO = 2.0
+
+
+def _unsteady(identification: Identification, alpha: float) -> list[Unexplained]:
+    """Lines whose readings repeat far worse than the plan's other lines of the same quantity.
+
+    Each line's weight is its own repeatability, so an error that changes from run to run (a
+    laser or a reflector that wanders, a beam cut and re-zeroed, an error periodic in time) only
+    widens that line's spread and leaves no structure against it. Measured by the same optics in
+    one session, lines of one quantity repeat alike: a line whose spread about its per-target,
+    per-direction means, in what the final model leaves, is :data:`PEER_SPREAD_RATIO` times the
+    median of its peers' (an F test at ``alpha``, Bonferroni over the lines) is reported."""
+    from scipy import special
+
+    readings = identification.readings
+    count = len(readings.lines)
+    spread: dict[int, tuple[float, int]] = {}
+    for index in range(count):
+        mask = readings.line == index
+        _, _, rest, _ = _line_parts(readings, identification.residual, index)
+        cells = np.unique(
+            readings.target[mask] * 2
+            + (readings.lines[index].data.run_direction[readings.run[mask]] > 0)
+        ).size
+        dof = int(mask.sum()) - cells
+        if dof > 0:
+            spread[index] = (float(np.sum(rest**2)) / dof, dof)
+    out = []
+    for index, (variance, dof) in spread.items():
+        line = readings.lines[index]
+        peers = [
+            spread[i]
+            for i in spread
+            if i != index and readings.lines[i].spec.quantity == line.spec.quantity
+        ]
+        if len(peers) < 3:
+            continue
+        reference = float(np.median([v for v, _ in peers]))
+        if reference <= 0 or variance < PEER_SPREAD_RATIO**2 * reference:
+            continue
+        peer_dof = int(sum(d for _, d in peers))
+        p = float(special.fdtrc(dof, peer_dof, variance / reference))
+        if p * count >= alpha:
+            continue
+        unit = "µrad" if line.spec.quantity == "angular" else "µm"
+        sigma, typical = float(np.sqrt(variance)), float(np.sqrt(reference))
+        shares = _shares(readings, identification.residual, index)
+        out.append(
+            Unexplained(
+                where=f"line {line.name}, from run to run",
+                description=(
+                    f"{line.spec.quantity} line {line.name} repeats to {sigma:.3g} {unit}, "
+                    f"{sigma / typical:.1f} times the {typical:.3g} {unit} of the plan's "
+                    f"{len(peers)} other {line.spec.quantity} lines (F test, log10 false alarm "
+                    f"{np.log10(max(p, 1e-300)):.0f}): its readings change between runs or "
+                    "within a run in a way no effect of the catalogue follows (a laser or a "
+                    "reflector that wanders, a beam cut and re-zeroed, an error that varies in "
+                    "time); weighted by its own spread, it bends the 21 errors less than its size"
+                ),
+                magnitude_um=float(np.sqrt(max(variance - reference, 0.0))),
+                correlates_with=shares,
+            )
+        )
     return out
 
 
@@ -1177,8 +1254,8 @@ def _judge(
 SHOWN_SIGMA2 = 16.0
 #: Machine effects that one line alone cannot tell from an artefact of that line's set-up.
 NEEDS_TWO_LINES = ("local", "higher_order", "cross_axis")
-#: Effects of one shape whose size must agree between the lines that show it (final audit).
-ONE_SHAPE = ("reversal", "cyclic", "thermal_drift", "local")
+#: Effects whose fitted contribution must have one size on every line that shows it (final audit).
+ONE_SHAPE = ("reversal", "cyclic", "thermal_drift", "local", "cross_axis")
 
 
 def _uncorroborated(effect: Effect, energy: FloatArray, readings: Readings) -> str | None:
@@ -1584,8 +1661,11 @@ def _audit(
     """With every kept effect in the model, each effect of one shape must have one size on every
     line that shows it (:func:`_sizes`); the one that varies most beyond that is taken out and
     the rest refitted, until all agree. Done at the end because while another effect was still
-    missing, the lines it spoils could not agree. A surface or a finer function is a basis, not
-    a shape: how well each line's slice of it fits is the cross-validation's question."""
+    missing, the lines it spoils could not agree. A finer function is a basis whose every line
+    sees a slice of its own: how well each slice fits is the cross-validation's question. A
+    low-order surface over two axes couples the lines that cross it: fitted to something that
+    is not a surface (a scale that oscillates in time, read as depending on where each line
+    lies), its fitted values fit some lines at twice the size and others at none."""
     while kept:
         failures = []
         for index, effect in enumerate(current.effects):

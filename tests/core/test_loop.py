@@ -247,3 +247,29 @@ def test_loop_report_has_the_contract_keys() -> None:
     assert result.final.effects
     # LineData is reused as is by the loop: nothing it was given changed
     assert isinstance(result.final.readings.lines[0].data, LineData)
+
+
+def test_a_line_that_repeats_worse_than_its_peers_is_reported_from_run_to_run() -> None:
+    """An error periodic in time only widens the spread of the line it acts on (each line is
+    weighted by its own repeatability): the loop reports that line, and no other, as unsteady."""
+    truth = sim.random_truth(seed=15)
+    vm = sim.VirtualMachine(
+        truth, (), seed=15, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
+    )
+    measurement = vm.measure(plans.layout("full", truth.machine, STEP_MM, JITTER_MM))
+
+    def unsteady(m: Measurement) -> list[str]:
+        report = close_loop(m).to_report()
+        return [u["where"] for u in report["unexplained"] if "from run to run" in u["where"]]
+
+    assert unsteady(measurement) == []
+    name = next(line.name for line in measurement.lines if line.spec.quantity == "linear")
+    lines = []
+    for line in measurement.lines:
+        if line.name == name:  # 0.4 µm periodic in time (97 s; a run lasts 268 s): 4× the noise
+            wave = 0.4 * np.sin(2 * np.pi * line.data.times_s / 97.0)
+            line = Line(line.spec, replace(line.data, deviations=line.data.deviations + wave))
+        lines.append(line)
+    assert unsteady(Measurement(measurement.machine, tuple(lines))) == [
+        f"line {name}, from run to run"
+    ]

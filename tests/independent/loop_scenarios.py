@@ -368,21 +368,39 @@ def _gauged(values: np.ndarray, q: np.ndarray, straightness: bool) -> np.ndarray
     return values - values[0]
 
 
+def fold_states(stroke: dict[str, tuple[float, float]], axis: str, q: np.ndarray) -> np.ndarray:
+    """Machine states along ``axis`` at q with the other axes at the middle of their strokes:
+    where a surface over two axes is folded into the functions it touches, for the truth and
+    the model alike (the split between a function and a surface's slice along it is a matter of
+    convention, the generator's and volucal's differ; their sum on a line is the machine's)."""
+    states = np.tile([0.5 * sum(stroke[a]) for a in AXES], (len(q), 1)).astype(float)
+    states[:, AXES.index(axis)] = q
+    return states
+
+
 def _single_axis_truth(scenario: Scenario, eid: str, q: np.ndarray) -> np.ndarray:
-    """The truth's part of error ``eid`` (E<d><a>) that depends on axis a alone: the function
-    plus its cycles and local defects (the split between a smooth function and a local shape is
-    a matter of basis; their sum is the machine's error)."""
+    """The truth's error ``eid`` (E<d><a>) along axis a on the line through the middle of the
+    other strokes: the function plus its cycles and local defects (the split between a smooth
+    function and a local shape is a matter of basis; their sum is the machine's error) and the
+    slice there of any surface in direction d over a and another axis."""
     total = scenario.machine.functions[eid](q).astype(float)
     if eid[1] not in AXES:  # an angle: no effect of the catalogue changes it
         return total
     d, a = AXES.index(eid[1]), eid[2]
-    states = np.zeros((len(q), 3))
-    states[:, AXES.index(a)] = q
+    states = fold_states(scenario.machine.stroke, a, q)
     for effect in scenario.effects:
-        single = (effect.kind == "cyclic" and effect.target == a and eid[1] == a) or (
-            effect.kind == "local"
-            and effect.target == a
-            and effect.parameters["direction"] == eid[1]
+        single = (
+            (effect.kind == "cyclic" and effect.target == a and eid[1] == a)
+            or (
+                effect.kind == "local"
+                and effect.target == a
+                and effect.parameters["direction"] == eid[1]
+            )
+            or (
+                effect.kind == "cross_axis"
+                and effect.target == eid[1]
+                and a in (effect.parameters["a"], effect.parameters["b"])
+            )
         )
         if single:
             error = effect.error_um(scenario.machine.stroke, states, np.zeros_like(states), q * 0)
@@ -397,12 +415,13 @@ def _single_axis_model(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, np.
     total = model.functions[eid](q).astype(float)
     if eid[1] in AXES:
         d, a = AXES.index(eid[1]), eid[2]
-        states = np.zeros((len(q), 3))
-        states[:, AXES.index(a)] = q
+        stroke = {axis: model.machine.stroke(axis) for axis in AXES}
+        states = fold_states(stroke, a, q)
         for effect, values in zip(
             result.final.effects, result.final.effect_parameters, strict=True
         ):
-            if effect.kind in ("cyclic", "local") and effect.axis == a:
+            surface = effect.kind == "cross_axis" and a in (effect.along, effect.across)
+            if (effect.kind in ("cyclic", "local") and effect.axis == a) or surface:
                 total = total + effect.error_um(values, model.machine, states)[:, d]
     sl = model.parameter_slices[eid]
     design = model.functions[eid].basis.design(q)

@@ -33,15 +33,22 @@ def _where(effect: dict) -> tuple[str, str]:
 
 def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[str, float], float]:  # type: ignore[no-untyped-def]
     """As :func:`loop_scenarios._accuracy`, against the manifest: every identified function with
-    its gauge removed, cycles and local defects folded into the function they change (the
-    generator's and volucal's alike)."""
-    from loop_scenarios import _single_axis_model
+    its gauge removed, cycles and local defects folded into the function they change and
+    surfaces folded in along the line through the middle of the other strokes
+    (:func:`loop_scenarios.fold_states`; the generator's and volucal's alike)."""
+    from loop_scenarios import _single_axis_model, fold_states
 
-    single = {}
+    single: dict[str, list] = {}
+    surfaces: dict[str, list] = {}
     for effect in build_scenario(seed).effects:
         if effect.kind in ("cyclic", "local"):
             eid = f"E{getattr(effect, 'direction', effect.axis)}{effect.axis}"
             single.setdefault(eid, []).append(effect)
+        elif effect.kind == "cross_axis":
+            for along in effect.depends_on:
+                surfaces.setdefault(f"E{effect.axis}{along}", []).append(effect)
+    machine = result.final.model.machine
+    stroke = {axis: machine.stroke(axis) for axis in "XYZ"}
     identified = set(result.base.identifiability.identified_ids)
     functions = {}
     worst_ratio = 0.0
@@ -53,6 +60,10 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
         value = np.asarray(table["value"], float)
         for effect in single.get(eid, ()):
             value = value + effect.value(q)
+        for effect in surfaces.get(eid, ()):
+            states = fold_states(stroke, eid[2], q)
+            a, b = (states[:, "XYZ".index(axis)] for axis in effect.depends_on)
+            value = value + effect.value(a, b)
         model, std = _single_axis_model(result, eid, q)
         difference = _gauged(model, q, straightness) - _gauged(value, q, straightness)
         functions[eid] = float(np.sqrt(np.mean(difference**2)))
