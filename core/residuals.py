@@ -640,11 +640,14 @@ def _cyclic_candidates(
             )
         diagnosis.add(effect)
     shortest = max(2.0, 2.0 * step if np.isfinite(step) else 2.0)
+    lowest = max(2.0, SUB_SPACING_SHARE * step) if np.isfinite(step) else shortest
     longest = span / 4.0
     if not lead and shortest > 8.0:
         warnings.append(
-            f"targets about every {step:.3g} mm along {axis}: cycles shorter than "
-            f"{shortest:.3g} mm cannot be searched (a screw cycle of a few mm would go unseen)"
+            f"targets about every {step:.3g} mm along {axis}: a cycle shorter than "
+            f"{shortest:.3g} mm is found only where irregular spacing tells it from its "
+            f"aliases, and none shorter than {lowest:.3g} mm (a screw cycle of a few mm may "
+            "go unseen)"
         )
     # a kept cycle may carry harmonics it does not have yet: a screw's cycle is rarely a pure
     # sine, and its harmonic found as a cycle of its own would be placed off its exact period.
@@ -653,7 +656,7 @@ def _cyclic_candidates(
     for effect in diagnosis.tester.ident.effects:
         if isinstance(effect, Cyclic) and effect.axis == axis:
             for h in (2, 3):
-                if h not in effect.harmonics and effect.period_mm / h >= max(2.0, step):
+                if h not in effect.harmonics and effect.period_mm / h >= lowest:
                     harmonics = tuple(sorted((*effect.harmonics, h)))
                     diagnosis.add(
                         replace(effect, harmonics=harmonics),
@@ -661,8 +664,14 @@ def _cyclic_candidates(
                     )
     if longest <= shortest:
         return warnings
-    found = _search_period(diagnosis, axis, ref, shortest, longest)
-    if found is not None:
+    found = _search_period(diagnosis, axis, ref, min(lowest, shortest), longest, shortest)
+    harmonic_of_kept = found is not None and any(
+        abs(1.0 / found[0] - h / effect.period_mm) < 1.0 / span
+        for effect in diagnosis.tester.ident.effects
+        if isinstance(effect, Cyclic) and effect.axis == axis
+        for h in (2, 3)
+    )
+    if found is not None and not harmonic_of_kept:  # a kept cycle's harmonic is tested above
         period, trials = found
         where = f"along {axis}, period {period:.4g} mm"
         one = diagnosis.add(Cyclic(axis, period, (1,), ref, True), trials, where)
@@ -678,11 +687,27 @@ def _cyclic_candidates(
     return warnings
 
 
+#: Periods down to this share of the finest target spacing are searched: targets spaced
+#: irregularly (as ISO 230-2 advises, to reveal periodic errors) sample a shorter cycle at phases
+#: no regular spacing reaches, and a least-squares fit of a sine needs no two samples per period.
+SUB_SPACING_SHARE = 0.5
+#: A period shorter than twice the spacing is kept only when its gain is this many times that of
+#: every other peak of the search: with near-regular targets its aliases fit as well.
+ALIAS_MARGIN = 2.0
+
+
 def _search_period(
-    diagnosis: _Diagnosis, axis: str, ref: float, shortest: float, longest: float
+    diagnosis: _Diagnosis,
+    axis: str,
+    ref: float,
+    shortest: float,
+    longest: float,
+    resolved: float | None = None,
 ) -> tuple[float, int] | None:
     """Least-squares periodogram along an axis from ``shortest`` to ``longest``: the best period,
-    refined continuously, and the number of independent frequencies searched."""
+    refined continuously, and the number of independent frequencies searched. A period below
+    ``resolved`` (twice the finest spacing) wins only by :data:`ALIAS_MARGIN` over every other
+    peak; otherwise the best peak at or above ``resolved`` does."""
     tester = diagnosis.tester
     k = AXIS_INDEX[axis]
     positions, _, weight = tester.target_sums(k)
@@ -720,12 +745,26 @@ def _search_period(
         return f_statistic * tester.last_dimensions
 
     peaks = np.flatnonzero((scores >= np.roll(scores, 1)) & (scores >= np.roll(scores, -1)))
-    candidates = (
-        peaks[np.argsort(scores[peaks])[::-1][:3]] if peaks.size else [int(np.argmax(scores))]
-    )
+    if not peaks.size:
+        peaks = np.array([int(np.argmax(scores))])
+    candidates = list(peaks[np.argsort(scores[peaks])[::-1][:3]])
+    cutoff = 1.0 / resolved if resolved is not None else np.inf
+    if resolved is not None and all(frequencies[i] > cutoff for i in candidates):
+        # the best resolved peak stays a contender for the alias test
+        below = peaks[frequencies[peaks] <= cutoff]
+        if below.size:
+            candidates.append(int(below[np.argmax(scores[below])]))
     trials = max(1, int(round(span * (1.0 / shortest - 1.0 / longest))))
     gains = {int(i): projected_gain(float(frequencies[i])) for i in candidates}
     best = max(gains, key=lambda i: gains[i])
+    if frequencies[best] > cutoff:
+        # a peak within two resolution steps is the same cycle's side lobe, not an alias
+        rivals = [gains[i] for i in gains if abs(frequencies[i] - frequencies[best]) > 2.0 / span]
+        if rivals and gains[best] < ALIAS_MARGIN * max(rivals):
+            resolved_peaks = [i for i in gains if frequencies[i] <= cutoff]
+            if not resolved_peaks:
+                return None
+            best = max(resolved_peaks, key=lambda i: gains[i])
     if not _worth_refining(diagnosis, Cyclic(axis, 1.0 / frequencies[best], (1,), ref), trials):
         return 1.0 / float(frequencies[best]), trials
     low = frequencies[max(best - 1, 0)]

@@ -54,9 +54,7 @@ def test_an_error_periodic_in_time_is_reported_on_every_line_it_acts_on(seed: in
     (effect,) = truth["effects"]
     assert effect["kind"] == "outside:time_periodic"
     noise = truth["noise"]["sigma_um"]
-    acting = {
-        line for line, peak in effect["visibility"]["per_line"].items() if peak > 4 * noise
-    }
+    acting = {line for line, peak in effect["visibility"]["per_line"].items() if peak > 4 * noise}
     unsteady = {
         u["where"].split(",")[0].removeprefix("line ")
         for u in report["unexplained"]
@@ -72,3 +70,17 @@ def test_a_scale_oscillating_in_time_is_not_kept_as_a_surface(seed: int) -> None
     assert outcome.category == "outside"
     assert not outcome.kept
     assert outcome.unexplained > 0
+
+
+def test_a_cycle_shorter_than_twice_the_spacing_is_found_where_irregular_targets_tell_it() -> None:
+    # every line along Y has targets about every 10.7 mm, irregularly; the cycle is 9.94 mm with
+    # its second harmonic: below two samples a period, but the irregular targets sample it at
+    # phases its aliases do not fit, and the search holds it to twice every alias' gain
+    report, truth = _loop(1061)
+    (cycle,) = [e for e in truth["effects"] if e["kind"] == "cyclic"]
+    kept = [e for e in report["effects"] if e["kind"] == "cyclic" and e["axis"] == "Y"]
+    assert len(kept) == 1, report["effects"]
+    parameters = kept[0]["parameters"]
+    assert parameters["period_mm"] == pytest.approx(cycle["parameters"]["period_mm"], rel=0.002)
+    h2 = cycle["parameters"]["harmonic2_amplitude_um"]
+    assert parameters["amplitude_um_h2"] == pytest.approx(h2, rel=0.1)
