@@ -1059,7 +1059,7 @@ def _unsteady(identification: Identification, alpha: float) -> list[Unexplained]
                     f"{line.spec.quantity} line {line.name} repeats to {sigma:.3g} {unit}, "
                     f"{sigma / typical:.1f} times the {typical:.3g} {unit} of the plan's "
                     f"{len(peers)} other {line.spec.quantity} lines (F test, log10 false alarm "
-                    f"{np.log10(max(p, 1e-300)):.0f}): its readings change between runs or "
+                    f"{_log10_text(p)}): its readings change between runs or "
                     "within a run in a way no effect of the catalogue follows (a laser or a "
                     "reflector that wanders, a beam cut and re-zeroed, an error that varies in "
                     "time); weighted by its own spread, it bends the 21 errors less than its size"
@@ -1069,6 +1069,11 @@ def _unsteady(identification: Identification, alpha: float) -> list[Unexplained]
             )
         )
     return out
+
+
+def _log10_text(p: float) -> str:
+    """log10 of a false-alarm level for a sentence; below what a double holds, said so."""
+    return f"{np.log10(p):.0f}" if p >= 1e-300 else "below −300"
 
 
 _FOLLOWS = {
@@ -1197,6 +1202,7 @@ class _Trial:
     ok: bool
     reason: str
     parameters: dict[str, object]
+    uncorroborated: bool = False  # refused only because one line alone shows it
 
     @property
     def score(self) -> float:
@@ -1261,15 +1267,15 @@ def _judge(
     if wild:
         reason += f" (over the held-out blocks less {wild} wild extrapolations)"
 
-    def refused(why: str) -> _Trial:
-        return _Trial(finding, refit, cv_new, False, f"{reason}; {why}", parameters)
+    def refused(why: str, uncorroborated: bool = False) -> _Trial:
+        return _Trial(finding, refit, cv_new, False, f"{reason}; {why}", parameters, uncorroborated)
 
     why = effect.implausible(values, covariance, options.plausibility)
     if why is not None:
         return refused(f"implausible: {why}")
     lonely = _uncorroborated(effect, energy, refit.readings)
     if lonely is not None:
-        return refused(lonely)
+        return refused(lonely, uncorroborated=True)
     if improvement < options.margin:
         return refused(f"below the {100 * options.margin:.0f} % margin: refused")
     fit_gain = _fit_metric(current) ** 2 - _fit_metric(refit) ** 2
@@ -1505,6 +1511,9 @@ def close_loop(
                 steps.append(_step(number, trial, trial is chosen, reason, current, cv))
         if chosen is None:
             break
+        alike = _alike(chosen, trials, current, cv, options.tie)
+        if alike is not None and alike not in warnings:
+            warnings.append(alike)
         kept = list(chosen.refit.effects)  # type: ignore[arg-type]
         current, cv = chosen.refit, chosen.cv
         current, cv, kept = _refine(fit, current, cv, kept, base, steps, number)
@@ -1514,6 +1523,41 @@ def close_loop(
     leftover = unexplained(current, cv, options.alpha)
     report(progress, 1.0, "loop closed")
     return LoopResult(base, current, cv_base, cv, tuple(steps), tuple(leftover), tuple(warnings))
+
+
+def _alike(
+    chosen: _Trial,
+    trials: list[_Trial],
+    current: Identification,
+    cv: CrossValidation,
+    tie: float,
+) -> str | None:
+    """A warning when the kept surface has a rival of another direction or pair of axes that
+    predicts the held-out data as well (within ``tie``), passing or refused only for showing on
+    one line: the plan cannot tell which of the two the machine has."""
+    effect = chosen.finding.effect
+    if not isinstance(effect, CrossAxis):
+        return None
+    where = (effect.direction, {effect.along, effect.across})
+    _, score, _ = _compared(cv, chosen.cv, current)
+    for trial in trials:
+        rival = trial.finding.effect
+        if trial is chosen or not isinstance(rival, CrossAxis):
+            continue
+        if (rival.direction, {rival.along, rival.across}) == where:
+            continue
+        if not (trial.ok or trial.uncorroborated):
+            continue
+        _, other = _compared(cv, trial.cv, current)[:2]
+        if other <= score * (1.0 + tie):
+            return (
+                f"{effect.label} was kept, but {rival.label} predicts the held-out data as well "
+                f"(cross-validated RMS {score:.4g} and {other:.4g}): this plan cannot tell "
+                f"which direction and pair of axes the surface belongs to; away from the lines "
+                "measured the two differ. Lines along the pair's axes at other offsets would "
+                "tell them apart"
+            )
+    return None
 
 
 def _simplest_best(passing: list[_Trial], tie: float) -> _Trial | None:

@@ -1,12 +1,15 @@
 """The closed loop on machines of the blind generator (tests/blind, written by someone who did not
-read the method), for three behaviours its suite showed missing:
+read the method), for behaviours its suite showed missing:
 
 - a cycle shorter than twice the spacing of most lines is found at its period when one line's
-  targets are fine enough to sample it (the coarser lines alias it; together they do not);
+  targets are fine enough to sample it (the coarser lines alias it; together they do not), and
+  one shorter than twice every line's spacing where irregular targets tell it from its aliases;
 - an error periodic in time, which only widens the run-to-run spread of the lines it acts on, is
   reported as unexplained on each of them, and nothing is kept for it;
 - a scale that oscillates in time, which a surface over two axes can mimic on the lines it
-  crosses, is not kept as one: the surface has no one size on those lines.
+  crosses, is not kept as one: the surface has no one size on those lines;
+- a surface the plan cannot place (another direction or pair predicts the held-out data as well)
+  is kept with a warning that names its rival.
 
 Each scenario is written to files by the generator, imported by volucal and run through
 ``close_loop`` with the shipped defaults; the truth comes from the generator's manifest.
@@ -84,3 +87,16 @@ def test_a_cycle_shorter_than_twice_the_spacing_is_found_where_irregular_targets
     assert parameters["period_mm"] == pytest.approx(cycle["parameters"]["period_mm"], rel=0.002)
     h2 = cycle["parameters"]["harmonic2_amplitude_um"]
     assert parameters["amplitude_um_h2"] == pytest.approx(h2, rel=0.1)
+
+
+def test_a_surface_the_plan_cannot_place_is_kept_with_a_warning_naming_its_rival() -> None:
+    # the direct plan measures each function on one line: EY over X×Z (the truth) and EY over Y×Z
+    # predict the held-out blocks alike (0.0995 and 0.0996 µm); the loop keeps one and says so
+    report, truth = _loop(1097)
+    (surface,) = truth["effects"]
+    assert surface["kind"] == "cross_axis" and surface["axis"] == "Y"
+    kept = [e for e in report["effects"] if e["kind"] == "cross_axis"]
+    assert len(kept) == 1 and kept[0]["axis"] == "Y"
+    alike = [w for w in report["warnings"] if "cannot tell which direction and pair" in w]
+    assert len(alike) == 1
+    assert "EY over X×Z" in alike[0] and "EY over Y×Z" in alike[0]
