@@ -85,12 +85,6 @@ def repeatability(line: Line) -> float:
     The spread of repeated readings at one target in one direction is what the instrument and the
     machine repeat to; it sets the weight of the line in identification.
     """
-    sigma, dof = repeatability_with_dof(line)
-    return max(sigma, SIGMA_FLOOR) if dof > 0 else float("nan")
-
-
-def repeatability_with_dof(line: Line) -> tuple[float, int]:
-    """:func:`repeatability` before its floor, with its degrees of freedom (0: no repeats)."""
     d = line.data
     squares = 0.0
     dof = 0
@@ -103,8 +97,8 @@ def repeatability_with_dof(line: Line) -> tuple[float, int]:
         squares += float(np.sum(centred[valid] ** 2))
         dof += int(valid.sum() - np.sum(valid.any(axis=0)))
     if dof <= 0:
-        return float("nan"), 0
-    return float(np.sqrt(squares / dof)), dof
+        return float("nan")
+    return max(float(np.sqrt(squares / dof)), SIGMA_FLOOR)
 
 
 def flatten(measurement: Measurement, default_sigma: float = 0.5) -> Readings:

@@ -600,18 +600,25 @@ def _corrected(log10_p: float, trials: int) -> float:
 
 
 def _target_steps(readings: Readings) -> dict[str, tuple[float, float]]:
-    """Per axis, the typical and the finest spacing of the targets along it (mm): the median and
-    the least of the lines' median steps, each projected on the axis (a diagonal's targets every
-    10.6 mm are 7.5 mm apart along each of its axes)."""
+    """Per axis, the typical and the finest spacing of the targets along it (mm): the median of
+    the median steps of the lines that move along it, each projected on the axis, and the least
+    of those of the lines that also read a displacement along it (linear lines: what sees a
+    cycle of the axis; a diagonal's targets every 10.6 mm are 7.5 mm apart along each axis)."""
     out = {}
     for axis in AXES:
         k = AXIS_INDEX[axis]
-        steps = [
-            float(np.median(np.diff(line.data.targets_mm))) * abs(line.spec.direction[k])
-            for line in readings.lines
-            if abs(line.spec.direction[k]) > 1e-6 and len(line.data.targets_mm) > 1
-        ]
-        out[axis] = (float(np.median(steps)), float(np.min(steps))) if steps else (np.nan, np.nan)
+        steps, seeing = [], []
+        for line in readings.lines:
+            share = abs(line.spec.direction[k])
+            if share <= 1e-6 or len(line.data.targets_mm) < 2:
+                continue
+            steps.append(float(np.median(np.diff(line.data.targets_mm))) * share)
+            if line.spec.quantity == "linear":
+                seeing.append(steps[-1])
+        if not steps:
+            out[axis] = (np.nan, np.nan)
+            continue
+        out[axis] = (float(np.median(steps)), float(np.min(seeing or steps)))
     return out
 
 
@@ -662,7 +669,7 @@ def _cyclic_candidates(
                         replace(effect, harmonics=harmonics),
                         where=f"along {axis}, period {effect.period_mm:.4g} mm, harmonic {h}",
                     )
-    if longest <= shortest:
+    if longest <= min(lowest, shortest):
         return warnings
     found = _search_period(diagnosis, axis, ref, min(lowest, shortest), longest, shortest)
     harmonic_of_kept = found is not None and any(
@@ -747,7 +754,14 @@ def _search_period(
     peaks = np.flatnonzero((scores >= np.roll(scores, 1)) & (scores >= np.roll(scores, -1)))
     if not peaks.size:
         peaks = np.array([int(np.argmax(scores))])
-    candidates = list(peaks[np.argsort(scores[peaks])[::-1][:3]])
+    # the three strongest distinct peaks: one within two resolution steps of a stronger one is
+    # that peak's side lobe, not another period
+    candidates: list[int] = []
+    for i in peaks[np.argsort(scores[peaks])[::-1]]:
+        if all(abs(frequencies[i] - frequencies[j]) > 2.0 / span for j in candidates):
+            candidates.append(int(i))
+        if len(candidates) == 3:
+            break
     cutoff = 1.0 / resolved if resolved is not None else np.inf
     if resolved is not None and all(frequencies[i] > cutoff for i in candidates):
         # the best resolved peak stays a contender for the alias test
@@ -758,9 +772,8 @@ def _search_period(
     gains = {int(i): projected_gain(float(frequencies[i])) for i in candidates}
     best = max(gains, key=lambda i: gains[i])
     if frequencies[best] > cutoff:
-        # a peak within two resolution steps is the same cycle's side lobe, not an alias
-        rivals = [gains[i] for i in gains if abs(frequencies[i] - frequencies[best]) > 2.0 / span]
-        if rivals and gains[best] < ALIAS_MARGIN * max(rivals):
+        rivals = [gains[i] for i in gains if i != best]
+        if not rivals or gains[best] < ALIAS_MARGIN * max(rivals):
             resolved_peaks = [i for i in gains if frequencies[i] <= cutoff]
             if not resolved_peaks:
                 return None
@@ -955,6 +968,7 @@ def unexplained(
     readings = identification.readings
     held_out = identification.residual if cross_validation is None else cross_validation.residual
     out = []
+    reported = set()
     count = len(readings.lines)
     for index, line in enumerate(readings.lines):
         mask = readings.line == index
@@ -984,6 +998,7 @@ def unexplained(
             # nothing locked to position: size it by the spread of the runs instead
             magnitude = float(np.sqrt(np.mean(r**2)))
             follows = "time"
+        reported.add(index)
         out.append(
             Unexplained(
                 where=f"line {line.name} at {position:.1f} mm",
@@ -999,8 +1014,7 @@ def unexplained(
                 correlates_with=shares,
             )
         )
-    reported = {u.where.split(" at ")[0] for u in out}
-    out += [u for u in _unsteady(identification, alpha) if u.where.split(",")[0] not in reported]
+    out += [u for index, u in _unsteady(identification, alpha) if index not in reported]
     return out
 
 
@@ -1008,7 +1022,7 @@ def unexplained(
 PEER_SPREAD_RATIO = 2.0
 
 
-def _unsteady(identification: Identification, alpha: float) -> list[Unexplained]:
+def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, Unexplained]]:
     """Lines whose readings repeat far worse than the plan's other lines of the same quantity.
 
     Each line's weight is its own repeatability, so an error that changes from run to run (a
@@ -1016,7 +1030,8 @@ def _unsteady(identification: Identification, alpha: float) -> list[Unexplained]
     widens that line's spread and leaves no structure against it. Measured by the same optics in
     one session, lines of one quantity repeat alike: a line whose spread about its per-target,
     per-direction means, in what the final model leaves, is :data:`PEER_SPREAD_RATIO` times the
-    median of its peers' (an F test at ``alpha``, Bonferroni over the lines) is reported."""
+    median of its peers' (an F test at ``alpha``, Bonferroni over the lines, with the median
+    peer's degrees of freedom) is reported, with its index."""
     from scipy import special
 
     readings = identification.readings
@@ -1024,6 +1039,8 @@ def _unsteady(identification: Identification, alpha: float) -> list[Unexplained]
     spread: dict[int, tuple[float, int]] = {}
     for index in range(count):
         mask = readings.line == index
+        if not mask.any():
+            continue
         _, _, rest, _ = _line_parts(readings, identification.residual, index)
         cells = np.unique(
             readings.target[mask] * 2
@@ -1045,7 +1062,7 @@ def _unsteady(identification: Identification, alpha: float) -> list[Unexplained]
         reference = float(np.median([v for v, _ in peers]))
         if reference <= 0 or variance < PEER_SPREAD_RATIO**2 * reference:
             continue
-        peer_dof = int(sum(d for _, d in peers))
+        peer_dof = int(np.median([d for _, d in peers]))
         p = float(special.fdtrc(dof, peer_dof, variance / reference))
         if p * count >= alpha:
             continue
@@ -1053,19 +1070,23 @@ def _unsteady(identification: Identification, alpha: float) -> list[Unexplained]
         sigma, typical = float(np.sqrt(variance)), float(np.sqrt(reference))
         shares = _shares(readings, identification.residual, index)
         out.append(
-            Unexplained(
-                where=f"line {line.name}, from run to run",
-                description=(
-                    f"{line.spec.quantity} line {line.name} repeats to {sigma:.3g} {unit}, "
-                    f"{sigma / typical:.1f} times the {typical:.3g} {unit} of the plan's "
-                    f"{len(peers)} other {line.spec.quantity} lines (F test, log10 false alarm "
-                    f"{_log10_text(p)}): its readings change between runs or "
-                    "within a run in a way no effect of the catalogue follows (a laser or a "
-                    "reflector that wanders, a beam cut and re-zeroed, an error that varies in "
-                    "time); weighted by its own spread, it bends the 21 errors less than its size"
+            (
+                index,
+                Unexplained(
+                    where=f"line {line.name}, from run to run",
+                    description=(
+                        f"{line.spec.quantity} line {line.name} repeats to {sigma:.3g} {unit}, "
+                        f"{sigma / typical:.1f} times the {typical:.3g} {unit} of the plan's "
+                        f"{len(peers)} other {line.spec.quantity} lines (F test, log10 false alarm "
+                        f"{_log10_text(p)}): its readings change between runs or "
+                        "within a run in a way no effect of the catalogue follows (a laser or "
+                        "a reflector that wanders, a beam cut and re-zeroed, an error that "
+                        "varies in time); weighted by its own spread, it bends the 21 errors "
+                        "less than its size"
+                    ),
+                    magnitude_um=float(np.sqrt(max(variance - reference, 0.0))),
+                    correlates_with=shares,
                 ),
-                magnitude_um=float(np.sqrt(max(variance - reference, 0.0))),
-                correlates_with=shares,
             )
         )
     return out
@@ -1467,6 +1488,7 @@ def close_loop(
     kept: list[Effect] = []
     steps: list[Step] = []
     refused: dict[EffectKey, float] = {}  # F statistic at which a candidate was last refused
+    ambiguous: dict[EffectKey, str] = {}  # kept surfaces a rival predicts as well
     number = 0
     while number < options.max_steps:
         number += 1
@@ -1484,6 +1506,7 @@ def close_loop(
         )
         chosen: _Trial | None = None
         tried = 0
+        tried_this_step: list[_Trial] = []
         while proposals and chosen is None and tried < options.max_refits_per_step:
             # refit the strongest few, but not those far weaker than the best: they are scored
             # again at the next step, against a model that then holds the strongest
@@ -1501,6 +1524,7 @@ def close_loop(
                 )
                 trials.append(_judge(finding, current, cv, refit, cv_new, options))
             tried += len(batch)
+            tried_this_step += trials
             chosen = _simplest_best([t for t in trials if t.ok], options.tie)
             for trial in trials:
                 if not trial.ok:
@@ -1511,14 +1535,16 @@ def close_loop(
                 steps.append(_step(number, trial, trial is chosen, reason, current, cv))
         if chosen is None:
             break
-        alike = _alike(chosen, trials, current, cv, options.tie)
-        if alike is not None and alike not in warnings:
-            warnings.append(alike)
+        alike = _alike(chosen, tried_this_step, current, cv, options.tie)
+        if alike is not None:
+            ambiguous[chosen.finding.effect.key] = alike
         kept = list(chosen.refit.effects)  # type: ignore[arg-type]
         current, cv = chosen.refit, chosen.cv
         current, cv, kept = _refine(fit, current, cv, kept, base, steps, number)
     current, cv, kept = _backward(fit, current, cv, kept, base, cv_base, options, steps, number)
     current, cv, kept = _audit(fit, current, cv, kept, base, cv_base, options, steps, number)
+    # said only of surfaces the final model holds
+    warnings += [ambiguous[e.key] for e in kept if e.key in ambiguous]
     report(progress, 0.95, "looking for what is still unexplained")
     leftover = unexplained(current, cv, options.alpha)
     report(progress, 1.0, "loop closed")

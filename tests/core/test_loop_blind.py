@@ -58,12 +58,13 @@ def test_an_error_periodic_in_time_is_reported_on_every_line_it_acts_on(seed: in
     assert effect["kind"] == "outside:time_periodic"
     noise = truth["noise"]["sigma_um"]
     acting = {line for line, peak in effect["visibility"]["per_line"].items() if peak > 4 * noise}
-    unsteady = {
-        u["where"].split(",")[0].removeprefix("line ")
+    reported = {
+        line
+        for line in acting
         for u in report["unexplained"]
-        if u["where"].endswith("from run to run")
+        if u["where"].startswith(f"line {line}")
     }
-    assert acting and acting <= unsteady, (acting, unsteady)
+    assert acting and reported == acting, (acting, report["unexplained"])
     assert not report["effects"]
 
 
