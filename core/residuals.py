@@ -138,6 +138,8 @@ class Finding:
     where: str
     #: drop of the weighted residual sum of squares (in units of σ²) the effect would bring
     gain: float = 0.0
+    #: for a searched cycle: a period the targets cannot tell from its own (mm), or None
+    alias_mm: float | None = None
 
     def evidence(self) -> dict[str, object]:
         return {
@@ -509,7 +511,13 @@ class _Diagnosis:
     excluded: set[EffectKey]
     findings: list[Finding] = field(default_factory=list)
 
-    def add(self, effect: Effect, trials: int = 1, where: str | None = None) -> Finding | None:
+    def add(
+        self,
+        effect: Effect,
+        trials: int = 1,
+        where: str | None = None,
+        alias_mm: float | None = None,
+    ) -> Finding | None:
         """Test one candidate (unless already kept) and keep it as a finding when the model
         cannot absorb it all."""
         if effect.key in self.excluded:
@@ -530,6 +538,7 @@ class _Diagnosis:
             detect,
             place,
             f * self.tester.last_dimensions,
+            alias_mm,
         )
         self.findings.append(finding)
         return finding
@@ -671,7 +680,7 @@ def _cyclic_candidates(
                     )
     if longest <= min(lowest, shortest):
         return warnings
-    found = _search_period(diagnosis, axis, ref, min(lowest, shortest), longest, shortest)
+    found = _search_period(diagnosis, axis, ref, min(lowest, shortest), longest, shortest, step)
     harmonic_of_kept = found is not None and any(
         abs(1.0 / found[0] - h / effect.period_mm) < 1.0 / span
         for effect in diagnosis.tester.ident.effects
@@ -679,12 +688,17 @@ def _cyclic_candidates(
         for h in (2, 3)
     )
     if found is not None and not harmonic_of_kept:  # a kept cycle's harmonic is tested above
-        period, trials = found
+        period, trials, alias = found
         where = f"along {axis}, period {period:.4g} mm"
-        one = diagnosis.add(Cyclic(axis, period, (1,), ref, True), trials, where)
+        if alias is not None:
+            where += f" (or its alias at {alias:.4g} mm)"
+        one = diagnosis.add(Cyclic(axis, period, (1,), ref, True), trials, where, alias)
         if one is not None and 2 * shortest <= period:
             two = diagnosis.add(
-                Cyclic(axis, period, (1, 2), ref, True), trials, where + " with 2nd harmonic"
+                Cyclic(axis, period, (1, 2), ref, True),
+                trials,
+                where + " with 2nd harmonic",
+                alias,
             )
             # one cycle per period: the harmonic variant only where its evidence is stronger
             stronger = two is not None and two.log10_false_alarm < one.log10_false_alarm
@@ -710,11 +724,14 @@ def _search_period(
     shortest: float,
     longest: float,
     resolved: float | None = None,
-) -> tuple[float, int] | None:
+    spacing: float | None = None,
+) -> tuple[float, int, float | None] | None:
     """Least-squares periodogram along an axis from ``shortest`` to ``longest``: the best period,
     refined continuously, and the number of independent frequencies searched. A period below
     ``resolved`` (twice the finest spacing) wins only by :data:`ALIAS_MARGIN` over every other
-    peak; otherwise the best peak at or above ``resolved`` does."""
+    peak; otherwise the best peak at or above ``resolved`` does. With the targets' ``spacing``,
+    the third value is an alias period that fits the readings about as well (gain within
+    :data:`ALIAS_MARGIN`), or None."""
     tester = diagnosis.tester
     k = AXIS_INDEX[axis]
     positions, _, weight = tester.target_sums(k)
@@ -778,16 +795,33 @@ def _search_period(
             if not resolved_peaks:
                 return None
             best = max(resolved_peaks, key=lambda i: gains[i])
-    if not _worth_refining(diagnosis, Cyclic(axis, 1.0 / frequencies[best], (1,), ref), trials):
-        return 1.0 / float(frequencies[best]), trials
-    low = frequencies[max(best - 1, 0)]
-    high = frequencies[min(best + 1, len(frequencies) - 1)]
-    from scipy.optimize import minimize_scalar
+    frequency = float(frequencies[best])
+    if _worth_refining(diagnosis, Cyclic(axis, 1.0 / frequency, (1,), ref), trials):
+        from scipy.optimize import minimize_scalar
 
-    refined = minimize_scalar(
-        lambda f: -projected_gain(f), bounds=(low, high), method="bounded", options={"xatol": 1e-7}
-    )
-    return 1.0 / float(refined.x), trials
+        low = frequencies[max(best - 1, 0)]
+        high = frequencies[min(best + 1, len(frequencies) - 1)]
+        refined = minimize_scalar(
+            lambda f: -projected_gain(f),
+            bounds=(low, high),
+            method="bounded",
+            options={"xatol": 1e-7},
+        )
+        frequency = float(refined.x)
+    alias = None
+    if spacing is not None and np.isfinite(spacing) and spacing > 0:
+        # the targets' own frequency shifts a cycle to periods that fit the same readings where
+        # the spacing is regular: one of them as good as the found period is its alias
+        own = projected_gain(frequency)
+        rivals = [
+            f
+            for f in (1.0 / spacing - frequency, 1.0 / spacing + frequency)
+            if 0.0 < f <= 0.5 and abs(f - frequency) > 2.0 / span
+        ]
+        gains_at = {f: projected_gain(f) for f in rivals}
+        if gains_at and max(gains_at.values()) * ALIAS_MARGIN >= own:
+            alias = 1.0 / max(gains_at, key=lambda f: gains_at[f])
+    return 1.0 / frequency, trials, alias
 
 
 def _thermal_candidates(
@@ -1489,6 +1523,7 @@ def close_loop(
     steps: list[Step] = []
     refused: dict[EffectKey, float] = {}  # F statistic at which a candidate was last refused
     ambiguous: dict[EffectKey, str] = {}  # kept surfaces a rival predicts as well
+    aliased: dict[str, float] = {}  # per axis: the alias period of a searched cycle kept
     number = 0
     while number < options.max_steps:
         number += 1
@@ -1538,13 +1573,26 @@ def close_loop(
         alike = _alike(chosen, tried_this_step, current, cv, options.tie)
         if alike is not None:
             ambiguous[chosen.finding.effect.key] = alike
+        effect = chosen.finding.effect
+        if chosen.finding.alias_mm is not None:
+            aliased[effect.axis] = chosen.finding.alias_mm  # type: ignore[index]
+        elif isinstance(effect, Cyclic) and ", harmonic " not in chosen.finding.where:
+            aliased.pop(effect.axis, None)  # a new cycle of the axis, told from its aliases
         kept = list(chosen.refit.effects)  # type: ignore[arg-type]
         current, cv = chosen.refit, chosen.cv
         current, cv, kept = _refine(fit, current, cv, kept, base, steps, number)
     current, cv, kept = _backward(fit, current, cv, kept, base, cv_base, options, steps, number)
     current, cv, kept = _audit(fit, current, cv, kept, base, cv_base, options, steps, number)
-    # said only of surfaces the final model holds
+    # said only of surfaces and cycles the final model holds
     warnings += [ambiguous[e.key] for e in kept if e.key in ambiguous]
+    warnings += [
+        f"the cycle of {e.axis} kept at {e.period_mm:.4g} mm fits the readings about as well at "
+        f"{aliased[e.axis]:.4g} mm: the targets along {e.axis} are too regular to tell a cycle "
+        "from its alias, and between the targets the two differ; targets spaced irregularly "
+        "(as ISO 230-2 advises) tell them apart"
+        for e in kept
+        if isinstance(e, Cyclic) and e.searched and e.axis in aliased
+    ]
     report(progress, 0.95, "looking for what is still unexplained")
     leftover = unexplained(current, cv, options.alpha)
     report(progress, 1.0, "loop closed")

@@ -273,3 +273,30 @@ def test_a_line_that_repeats_worse_than_its_peers_is_reported_from_run_to_run() 
     assert unsteady(Measurement(measurement.machine, tuple(lines))) == [
         f"line {name}, from run to run"
     ]
+
+
+@pytest.mark.parametrize("jitter_mm", [3.5, 0.0])
+def test_a_cycle_shorter_than_twice_the_spacing_needs_irregular_targets(jitter_mm: float) -> None:
+    """Lines along the axes only, targets about every 12 mm, a 9 mm cycle of X. Irregular targets
+    (±3.5 mm, ISO 230-2 style) sample it at phases its aliases do not fit: the loop finds its
+    period. On regular targets its alias at 1/(1/9 − 1/12) = 36 mm fits the readings as well:
+    whichever is kept, the report names the other and says why."""
+    truth = sim.random_truth(seed=16)
+    vm = sim.VirtualMachine(
+        truth,
+        (sim.CyclicError("X", 1.5, 9.0, 0.4),),
+        seed=16,
+        laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE),
+    )
+    measured = vm.measure(plans.layout("direct", truth.machine, 12.0, jitter_mm))
+    lines = tuple(line for line in measured.lines if not line.name.startswith("diag"))
+    report = close_loop(Measurement(measured.machine, lines)).to_report()
+    cycles = [e["parameters"]["period_mm"] for e in report["effects"] if e["kind"] == "cyclic"]
+    alias = [w for w in report["warnings"] if "too regular to tell a cycle from its alias" in w]
+    if jitter_mm:
+        assert cycles == [pytest.approx(9.0, rel=0.002)], report["effects"]
+        assert not alias
+    else:
+        assert len(cycles) == 1 and len(alias) == 1, (cycles, report["warnings"])
+        periods = sorted([cycles[0], float(alias[0].split(" at ")[2].split(" mm")[0])])
+        assert periods == [pytest.approx(9.0, rel=0.01), pytest.approx(36.0, rel=0.05)]
