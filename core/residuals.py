@@ -669,22 +669,22 @@ def _cyclic_candidates(
     # sine, and its harmonic found as a cycle of its own would be placed off its exact period.
     # With the period known, a harmonic down to the targets' spacing is no search: no aliasing
     # of unknown periods to guard against.
-    for effect in diagnosis.tester.ident.effects:
-        if isinstance(effect, Cyclic) and effect.axis == axis:
-            for h in (2, 3):
-                if h not in effect.harmonics and effect.period_mm / h >= lowest:
-                    harmonics = tuple(sorted((*effect.harmonics, h)))
-                    diagnosis.add(
-                        replace(effect, harmonics=harmonics),
-                        where=f"along {axis}, period {effect.period_mm:.4g} mm, harmonic {h}",
-                    )
-    if longest <= min(lowest, shortest):
+    kept_cycles = [
+        e for e in diagnosis.tester.ident.effects if isinstance(e, Cyclic) and e.axis == axis
+    ]
+    for cycle in kept_cycles:
+        for h in (2, 3):
+            if h not in cycle.harmonics and cycle.period_mm / h >= lowest:
+                diagnosis.add(
+                    replace(cycle, harmonics=tuple(sorted((*cycle.harmonics, h)))),
+                    where=f"along {axis}, period {cycle.period_mm:.4g} mm, harmonic {h}",
+                )
+    if longest <= lowest:
         return warnings
-    found = _search_period(diagnosis, axis, ref, min(lowest, shortest), longest, shortest, step)
+    found = _search_period(diagnosis, axis, ref, lowest, longest, shortest, step)
     harmonic_of_kept = found is not None and any(
-        abs(1.0 / found[0] - h / effect.period_mm) < 1.0 / span
-        for effect in diagnosis.tester.ident.effects
-        if isinstance(effect, Cyclic) and effect.axis == axis
+        abs(1.0 / found[0] - h / cycle.period_mm) < 1.0 / span
+        for cycle in kept_cycles
         for h in (2, 3)
     )
     if found is not None and not harmonic_of_kept:  # a kept cycle's harmonic is tested above
@@ -795,7 +795,7 @@ def _search_period(
             if not resolved_peaks:
                 return None
             best = max(resolved_peaks, key=lambda i: gains[i])
-    frequency = float(frequencies[best])
+    frequency, own = float(frequencies[best]), gains[best]
     if _worth_refining(diagnosis, Cyclic(axis, 1.0 / frequency, (1,), ref), trials):
         from scipy.optimize import minimize_scalar
 
@@ -807,12 +807,11 @@ def _search_period(
             method="bounded",
             options={"xatol": 1e-7},
         )
-        frequency = float(refined.x)
+        frequency, own = float(refined.x), -float(refined.fun)
     alias = None
     if spacing is not None and np.isfinite(spacing) and spacing > 0:
         # the targets' own frequency shifts a cycle to periods that fit the same readings where
         # the spacing is regular: one of them as good as the found period is its alias
-        own = projected_gain(frequency)
         rivals = [
             f
             for f in (1.0 / spacing - frequency, 1.0 / spacing + frequency)
@@ -1076,11 +1075,7 @@ def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, U
         if not mask.any():
             continue
         _, _, rest, _ = _line_parts(readings, identification.residual, index)
-        cells = np.unique(
-            readings.target[mask] * 2
-            + (readings.lines[index].data.run_direction[readings.run[mask]] > 0)
-        ).size
-        dof = int(mask.sum()) - cells
+        dof = int(mask.sum()) - np.unique(_cell_key(readings, index)).size
         if dof > 0:
             spread[index] = (float(np.sum(rest**2)) / dof, dof)
     out = []
@@ -1138,6 +1133,13 @@ _FOLLOWS = {
 }
 
 
+def _cell_key(readings: Readings, index: int) -> NDArray[np.int64]:
+    """Per reading of a line, its cell: the target and the approach direction."""
+    mask = readings.line == index
+    direction = readings.lines[index].data.run_direction[readings.run[mask]]
+    return np.asarray(readings.target[mask] * 2 + (direction > 0), dtype=np.int64)
+
+
 def _line_parts(
     readings: Readings, residual: FloatArray, index: int
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
@@ -1146,10 +1148,8 @@ def _line_parts(
     mask = readings.line == index
     r = residual[mask]
     target = readings.target[mask]
-    line = readings.lines[index]
-    direction = line.data.run_direction[readings.run[mask]]
     k = int(target.max()) + 1
-    key = target * 2 + (direction > 0)
+    key = _cell_key(readings, index)
     counts = np.bincount(key, minlength=2 * k)
     cell = np.bincount(key, weights=r, minlength=2 * k) / np.maximum(counts, 1)
     has = counts > 0
@@ -1576,7 +1576,9 @@ def close_loop(
         effect = chosen.finding.effect
         if chosen.finding.alias_mm is not None:
             aliased[effect.axis] = chosen.finding.alias_mm  # type: ignore[index]
-        elif isinstance(effect, Cyclic) and ", harmonic " not in chosen.finding.where:
+        elif isinstance(effect, Cyclic) and not any(
+            isinstance(e, Cyclic) and e.period_mm == effect.period_mm for e in kept
+        ):
             aliased.pop(effect.axis, None)  # a new cycle of the axis, told from its aliases
         kept = list(chosen.refit.effects)  # type: ignore[arg-type]
         current, cv = chosen.refit, chosen.cv
