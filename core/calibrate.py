@@ -231,8 +231,9 @@ def calibrate(
     result["compensation"] = compensation_report(source, tuple(files), verification)
     if request.project_path is not None:
         report(progress, 0.96, "saving the project")
-        save_project(request.project_path, imported, loop, result, sensitivity_result,
-                     loop_options.identify)
+        save_project(
+            request.project_path, imported, loop, result, sensitivity_result, loop_options.identify
+        )
     if request.report_path is not None:
         write_json_atomic(request.report_path, result)
     if refused is not None:
@@ -372,6 +373,15 @@ def summary_table(result: Mapping[str, Any]) -> str:
         f"   {'whole loop':<42} {rms['before_loop']:6.3f} {rms['after_loop']:6.3f}"
         f"   {cv['before_loop']:6.3f} {cv['after_loop']:6.3f}   ({cv['method']})"
     )
+    judged = cv.get("all_lines")
+    if judged and (judged["before_loop"], judged["after_loop"]) != (
+        cv["before_loop"],
+        cv["after_loop"],
+    ):
+        lines.append(
+            f"   {'every line, angular at σ exchange':<42} {'':6} {'':6}"
+            f"   {judged['before_loop']:6.3f} {judged['after_loop']:6.3f}"
+        )
     if result["effects"]:
         lines.append("")
         lines.append("effects kept:")

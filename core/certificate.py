@@ -43,8 +43,9 @@ class Certificate:
     def __post_init__(self) -> None:
         unknown = sorted(set(self.values) - set(KEYS))
         if unknown:
-            raise UserError(f"certificate field(s) {', '.join(unknown)}: the fields are "
-                            f"{', '.join(KEYS)}")
+            raise UserError(
+                f"certificate field(s) {', '.join(unknown)}: the fields are {', '.join(KEYS)}"
+            )
 
     def get(self, key: str) -> str:
         return str(self.values.get(key, "") or "").strip()
@@ -72,6 +73,7 @@ class Certificate:
     @classmethod
     def from_logs(cls, project: Any) -> Certificate:
         """What the project's machine and logs say (the first non-empty value of each)."""
+
         def first(key: str) -> str:
             for stored in project.lines.values():
                 value = str(stored.corrected.metadata.get(key, "") or "").strip()
@@ -79,14 +81,22 @@ class Certificate:
                     return value
             return ""
 
-        starts = [s.corrected.start_time for s in project.lines.values()
-                  if s.corrected.start_time]
-        measured = (datetime.fromtimestamp(min(starts), UTC).strftime("%Y-%m-%d") if starts
-                    else first("date"))
+        starts = [s.corrected.start_time for s in project.lines.values() if s.corrected.start_time]
+        measured = (
+            datetime.fromtimestamp(min(starts), UTC).strftime("%Y-%m-%d")
+            if starts
+            else first("date")
+        )
         machine = first("machine") or (project.machine.name if project.machine else "")
-        return cls({"machine": machine, "serial": first("serial"),
-                    "operator": first("operator"), "measured": measured,
-                    "place": first("location")})
+        return cls(
+            {
+                "machine": machine,
+                "serial": first("serial"),
+                "operator": first("operator"),
+                "measured": measured,
+                "place": first("location"),
+            }
+        )
 
     @classmethod
     def of_project(cls, project: Any) -> Certificate:

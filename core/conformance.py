@@ -116,9 +116,13 @@ class Conformance:
             "verdict": self.verdict,
             "uncertainty_statement": self.uncertainty_statement,
             "items": [
-                {"name": i.name, "value_um": i.value_um,
-                 "expanded_uncertainty_um": i.expanded_uncertainty_um, "verdict": i.verdict,
-                 "where": i.where}
+                {
+                    "name": i.name,
+                    "value_um": i.value_um,
+                    "expanded_uncertainty_um": i.expanded_uncertainty_um,
+                    "verdict": i.verdict,
+                    "where": i.where,
+                }
                 for i in self.items
             ],
         }
@@ -140,16 +144,24 @@ def accuracy_conformance(
         travel = float(np.ptp(line.data.targets_mm))
         u = float(budget.positioning_std_um(np.array([travel]))[0])
         expanded = COVERAGE_K * u
-        items.append(ConformanceItem(line.name, float(value), expanded,
-                                     decide(float(value), expanded, tolerance_um),
-                                     f"travel {travel:.0f} mm"))
+        items.append(
+            ConformanceItem(
+                line.name,
+                float(value),
+                expanded,
+                decide(float(value), expanded, tolerance_um),
+                f"travel {travel:.0f} mm",
+            )
+        )
     if not items:
-        raise UserError("the project has no linear line: the positioning accuracy A cannot be "
-                        "decided on (use --tolerance-on volumetric)")
+        raise UserError(
+            "the project has no linear line: the positioning accuracy A cannot be "
+            "decided on (use --tolerance-on volumetric)"
+        )
     return Conformance(
         quantity="accuracy",
         description="bidirectional positioning accuracy A (ISO 230-2) of each linear line, "
-                    "machine as measured",
+        "machine as measured",
         tolerance_um=float(tolerance_um),
         items=tuple(items),
         verdict=combine([i.verdict for i in items]),
@@ -194,8 +206,13 @@ def volumetric_conformance(
     )
     expanded = COVERAGE_K * float(np.sqrt(max(statistical, 0.0) + setup))
     where = "X {:.0f} Y {:.0f} Z {:.0f} mm".format(*q)
-    item = ConformanceItem("ET = |E| (largest over the workspace)", value, expanded,
-                           decide(value, expanded, tolerance_um), where)
+    item = ConformanceItem(
+        "ET = |E| (largest over the workspace)",
+        value,
+        expanded,
+        decide(value, expanded, tolerance_um),
+        where,
+    )
     return Conformance(
         quantity="volumetric",
         description=(

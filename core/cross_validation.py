@@ -195,12 +195,14 @@ def _cross_validate_blocks(
     Each fold is the minimum-norm (column-scaled) least-squares fit of the readings it keeps,
     solved line by line like identification.
     """
-    residual = np.empty(len(readings))
+    residual = np.full(len(readings), np.nan)
     fold_of = np.zeros(len(readings), dtype=int)
     for index in range(len(readings.lines)):
         mask = readings.line == index
-        block = np.floor(readings.target_mm[mask] / BLOCK_MM).astype(int)
-        fold_of[mask] = (block + index) % folds
+        target = readings.target_mm[mask]
+        block = np.floor(target / BLOCK_MM).astype(int)
+        ends = (target <= target.min()) | (target >= target.max())
+        fold_of[mask] = np.where(ends, -1, (block + index) % folds)
     own = system.own_columns()
     for k in range(folds):
         held = fold_of == k
@@ -227,10 +229,10 @@ def _cross_validate_blocks(
 def _summarise(method: str, residual: FloatArray, readings: Readings) -> CrossValidation:
     angular = readings.is_angular
     disp = ~angular
-    rms_um = float(np.sqrt(np.mean(residual[disp] ** 2))) if disp.any() else float("nan")
-    rms_urad = float(np.sqrt(np.mean(residual[angular] ** 2))) if angular.any() else float("nan")
+    rms_um = float(np.sqrt(np.nanmean(residual[disp] ** 2))) if disp.any() else float("nan")
+    rms_urad = float(np.sqrt(np.nanmean(residual[angular] ** 2))) if angular.any() else float("nan")
     per_line = {
-        line.name: float(np.sqrt(np.mean(residual[readings.line == i] ** 2)))
+        line.name: float(np.sqrt(np.nanmean(residual[readings.line == i] ** 2)))
         for i, line in enumerate(readings.lines)
     }
     return CrossValidation(method, rms_um, rms_urad, per_line, residual)

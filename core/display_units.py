@@ -54,8 +54,7 @@ class DisplayUnits:
 
     def __post_init__(self) -> None:
         if self.length not in LENGTH_UNITS:
-            raise UserError(f"length unit {self.length!r}: use one of "
-                            f"{', '.join(LENGTH_UNITS)}")
+            raise UserError(f"length unit {self.length!r}: use one of {', '.join(LENGTH_UNITS)}")
         if self.angle not in ANGLE_UNITS:
             raise UserError(f"angle unit {self.angle!r}: use one of {', '.join(ANGLE_UNITS)}")
 
@@ -81,8 +80,9 @@ class DisplayUnits:
         """A value typed in the display unit, back in ``core_unit``."""
         return float(value) / self.unit(core_unit).per_core_unit
 
-    def text(self, value: float | None, core_unit: str, with_symbol: bool = True,
-             extra_decimals: int = 0) -> str:
+    def text(
+        self, value: float | None, core_unit: str, with_symbol: bool = True, extra_decimals: int = 0
+    ) -> str:
         """A value for a table: the unit's decimals, "—" when unknown, never "-0.000"."""
         if value is None or not math.isfinite(float(value)):
             return "—"

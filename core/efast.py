@@ -654,15 +654,17 @@ class MainEffectTails:
         # Re(AᴴB) = AᵣᵀBᵣ + AᵢᵀBᵢ keeps every product real and batched.
         harmonic_gram = _real_gram(at_harmonics)
         own_map = _apply_real(_pseudo_inverse_real(harmonic_gram), at_harmonics.conj())
-        own_covariance = covariance[:, blocks[:, None, None], own_terms[:, :, None],
-                                    own_terms[:, None, :]]
+        own_covariance = covariance[
+            :, blocks[:, None, None], own_terms[:, :, None], own_terms[:, None, :]
+        ]
         own_gram = own_covariance - 2.0 * harmonic_gram
         others = np.array([[t for t in range(terms * factors) if t // terms != i] for i in blocks])
         low = spectra[:, blocks[:, None, None], others[:, :, None], np.arange(band)]
         low_gram = _real_gram(low)
         rest_map = _apply_real(_pseudo_inverse_real(low_gram), low.conj())
-        rest_covariance = covariance[:, blocks[:, None, None], others[:, :, None],
-                                     others[:, None, :]]
+        rest_covariance = covariance[
+            :, blocks[:, None, None], others[:, :, None], others[:, None, :]
+        ]
         rest_gram = rest_covariance - 2.0 * low_gram
         gap = np.zeros((repeats, factors, factors, factors))
         if distributions is not None:
@@ -718,8 +720,10 @@ def _apply_real(matrix: FloatArray, rows: NDArray[np.complex128]) -> NDArray[np.
 
 def _real_gram(rows: NDArray[np.complex128]) -> FloatArray:
     """Re(R·Rᴴ) over the last axis of complex rows (..., k, bins): (..., k, k)."""
-    pairs = rows.view(np.float64) if rows.strides[-1] == rows.itemsize else (
-        np.ascontiguousarray(rows).view(np.float64)
+    pairs = (
+        rows.view(np.float64)
+        if rows.strides[-1] == rows.itemsize
+        else (np.ascontiguousarray(rows).view(np.float64))
     )
     return np.asarray(np.einsum("...ak,...bk->...ab", pairs, pairs))
 

@@ -33,8 +33,16 @@ STANDARD_AIR = {"temp_c": 20.0, "pressure_pa": 101325.0, "humidity_pct": 50.0}
 
 # IAPWS-IF97 saturation-pressure coefficients (NIST EMT, Appendix A-I)
 _K = (
-    1.16705214528e3, -7.24213167032e5, -1.70738469401e1, 1.20208247025e4, -3.23255503223e6,
-    1.49151086135e1, -4.82326573616e3, 4.05113405421e5, -2.38555575678e-1, 6.50175348448e2,
+    1.16705214528e3,
+    -7.24213167032e5,
+    -1.70738469401e1,
+    1.20208247025e4,
+    -3.23255503223e6,
+    1.49151086135e1,
+    -4.82326573616e3,
+    4.05113405421e5,
+    -2.38555575678e-1,
+    6.50175348448e2,
 )
 
 
@@ -102,10 +110,14 @@ def air_refractive_index(
 
 def standard_air_index(wavelength_um: float = HENE_WAVELENGTH_UM) -> float:
     """Index of air at 20 °C, 101.325 kPa, 50 %RH (what an uncompensated reading assumed)."""
-    return float(air_refractive_index(
-        STANDARD_AIR["temp_c"], STANDARD_AIR["pressure_pa"], STANDARD_AIR["humidity_pct"],
-        wavelength_um=wavelength_um,
-    ))
+    return float(
+        air_refractive_index(
+            STANDARD_AIR["temp_c"],
+            STANDARD_AIR["pressure_pa"],
+            STANDARD_AIR["humidity_pct"],
+            wavelength_um=wavelength_um,
+        )
+    )
 
 
 def correct_linear(
@@ -131,8 +143,9 @@ def correct_linear(
     position_um = np.asarray(position_mm, dtype=float) * 1e3
     length_um = position_um + np.asarray(deviation_um, dtype=float)
     if air_temp_c is not None and pressure_pa is not None:
-        n_air = air_refractive_index(air_temp_c, pressure_pa, humidity_pct,
-                                     wavelength_um=wavelength_um)
+        n_air = air_refractive_index(
+            air_temp_c, pressure_pa, humidity_pct, wavelength_um=wavelength_um
+        )
         n_assumed = standard_air_index(wavelength_um) if assumed_index is None else assumed_index
         length_um = length_um * n_assumed / n_air
     if material_temp_c is not None and expansion_ppm_per_c is not None:
@@ -180,15 +193,25 @@ def correct_line_data(
 
     applied: list[str] = []
     if air is not None and pressure_kpa is not None:
-        _check_range(pressure_kpa, 60.0, 120.0, "air pressure", "kPa",
-                     " (a value near 1000 is in mbar/hPa: divide by 10)")
+        _check_range(
+            pressure_kpa,
+            60.0,
+            120.0,
+            "air pressure",
+            "kPa",
+            " (a value near 1000 is in mbar/hPa: divide by 10)",
+        )
         _check_range(air, 0.0, 40.0, "air temperature", "°C", "")
         if humidity is not None:
             _check_range(humidity, 0.0, 100.0, "relative humidity", "%", "")
         applied.append(
             "air refractive index by the modified Edlén equation from the logged air "
-            "temperature, pressure" + (" and humidity" if humidity is not None else
-                                       " (no humidity logged: dry air assumed)")
+            "temperature, pressure"
+            + (
+                " and humidity"
+                if humidity is not None
+                else " (no humidity logged: dry air assumed)"
+            )
         )
     else:
         air = None
@@ -217,8 +240,9 @@ def correct_line_data(
     return replace(data, deviations=corrected), applied
 
 
-def _check_range(values: FloatArray, low: float, high: float, what: str, unit: str,
-                 hint: str) -> None:
+def _check_range(
+    values: FloatArray, low: float, high: float, what: str, unit: str, hint: str
+) -> None:
     finite = values[np.isfinite(values)]
     if finite.size and (finite.min() < low or finite.max() > high):
         raise ValueError(

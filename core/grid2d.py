@@ -88,8 +88,9 @@ class GridMeasurement:
             raise ValueError(f"position_mm: expected shape (n, 2), got {position.shape}")
         n = position.shape[0]
         object.__setattr__(self, "position_mm", position)
-        object.__setattr__(self, "deviation_um",
-                           _readonly(self.deviation_um, (n, 2), "deviation_um"))
+        object.__setattr__(
+            self, "deviation_um", _readonly(self.deviation_um, (n, 2), "deviation_um")
+        )
         for key in ("air_temp_c", "material_temp_c", "pressure_kpa", "humidity_pct"):
             value = getattr(self, key)
             if value is not None:
@@ -114,8 +115,9 @@ class GridMeasurement:
     @property
     def measured_directions(self) -> tuple[str, ...]:
         """The directions with at least one reading (``("X", "Y")`` for an Accuracy2D grid)."""
-        return tuple(a for k, a in enumerate(GRID_AXES)
-                     if np.any(np.isfinite(self.deviation_um[:, k])))
+        return tuple(
+            a for k, a in enumerate(GRID_AXES) if np.any(np.isfinite(self.deviation_um[:, k]))
+        )
 
     def environment_summary(self) -> dict[str, dict[str, float]]:
         """Mean, min and max of each environment quantity the grid carries."""
@@ -123,8 +125,11 @@ class GridMeasurement:
         for key in ("air_temp_c", "material_temp_c", "pressure_kpa", "humidity_pct"):
             value = getattr(self, key)
             if value is not None and value.size:
-                out[key] = {"mean": float(np.mean(value)), "min": float(np.min(value)),
-                            "max": float(np.max(value))}
+                out[key] = {
+                    "mean": float(np.mean(value)),
+                    "min": float(np.min(value)),
+                    "max": float(np.max(value)),
+                }
         return out
 
 
@@ -207,25 +212,39 @@ def common_lattice(grids: list[GridMeasurement], tolerance_mm: float = 1e-3) -> 
             nodes, step, worst = grid_nodes(grid.position_mm[:, k], tolerance_mm)
             if nodes.size < 2:
                 raise GridLayoutError(
-                    grid, None, f"every reading has the same commanded {axis} ({nodes[0]:g} "
-                    f"mm): a grid needs at least two {axis} positions; check the column map")
+                    grid,
+                    None,
+                    f"every reading has the same commanded {axis} ({nodes[0]:g} "
+                    f"mm): a grid needs at least two {axis} positions; check the column map",
+                )
             distinct = np.unique(np.round(grid.position_mm[:, k] / tolerance_mm))
             if nodes.size > max(2 * distinct.size, 16) or nodes.size > 4 * grid.count:
                 # a spacing far below the values' spread: measured values, not commanded nodes
                 gaps = np.diff(np.sort(grid.position_mm[:, k]))
-                index = int(np.argsort(grid.position_mm[:, k])[1 + int(np.argmin(
-                    np.where(gaps > tolerance_mm, gaps, np.inf)))])
+                index = int(
+                    np.argsort(grid.position_mm[:, k])[
+                        1 + int(np.argmin(np.where(gaps > tolerance_mm, gaps, np.inf)))
+                    ]
+                )
                 raise GridLayoutError(
-                    grid, index, f"the commanded {axis} values ({distinct.size} distinct, some "
+                    grid,
+                    index,
+                    f"the commanded {axis} values ({distinct.size} distinct, some "
                     f"{step:.4g} mm apart) do not lie on a regular grid: check the column map "
-                    "(are the commanded and measured columns swapped?)")
-            offset = abs(grid.position_mm[worst, k] - (nodes[0] + step * round(
-                (grid.position_mm[worst, k] - nodes[0]) / step)))
+                    "(are the commanded and measured columns swapped?)",
+                )
+            offset = abs(
+                grid.position_mm[worst, k]
+                - (nodes[0] + step * round((grid.position_mm[worst, k] - nodes[0]) / step))
+            )
             if offset > tolerance_mm:
                 raise GridLayoutError(
-                    grid, worst, f"commanded {axis} = {grid.position_mm[worst, k]:.6g} mm is "
+                    grid,
+                    worst,
+                    f"commanded {axis} = {grid.position_mm[worst, k]:.6g} mm is "
                     f"{offset:.4g} mm off the grid's {step:g} mm nodes: check this line (are "
-                    "the commanded and measured columns swapped?)")
+                    "the commanded and measured columns swapped?)",
+                )
             pair.append(step)
         steps.append((pair[0], pair[1]))
     step_x = steps[0][0]
@@ -233,9 +252,12 @@ def common_lattice(grids: list[GridMeasurement], tolerance_mm: float = 1e-3) -> 
     for grid, (sx, sy) in zip(grids, steps, strict=True):
         if abs(sx - step_x) > tolerance_mm or abs(sy - step_y) > tolerance_mm:
             raise GridLayoutError(
-                grid, None, f"its node step ({sx:g} × {sy:g} mm) differs from the first "
+                grid,
+                None,
+                f"its node step ({sx:g} × {sy:g} mm) differs from the first "
                 f"grid's ({step_x:g} × {step_y:g} mm); grids fitted together must share one "
-                "step")
+                "step",
+            )
     low = grids[0].position_mm.min(axis=0)
     high = grids[0].position_mm.max(axis=0)
     for grid in grids[1:]:
@@ -249,9 +271,12 @@ def common_lattice(grids: list[GridMeasurement], tolerance_mm: float = 1e-3) -> 
             shift = (grid.position_mm[:, k] - low[k]) / step
             if np.max(np.abs(shift - np.rint(shift))) * step > tolerance_mm:
                 raise GridLayoutError(
-                    grid, None, f"its {GRID_AXES[k]} nodes are not on the {step:g} mm lattice "
+                    grid,
+                    None,
+                    f"its {GRID_AXES[k]} nodes are not on the {step:g} mm lattice "
                     "of the other grids (offset origin); grids fitted together must share "
-                    "their nodes")
+                    "their nodes",
+                )
         axes_nodes.append(nodes)
     return Lattice(axes_nodes[0], axes_nodes[1])
 
@@ -268,9 +293,11 @@ def missing_nodes(grid: GridMeasurement, lattice: Lattice) -> list[tuple[float, 
     ix, iy = lattice.index(grid.position_mm)
     seen = np.zeros((int(iy.max()) + 1, int(ix.max()) + 1), dtype=bool)
     seen[iy, ix] = True
-    rows, cols = np.nonzero(~seen[iy.min():, ix.min():])
-    return [(float(lattice.x_mm[ix.min() + c]), float(lattice.y_mm[iy.min() + r]))
-            for r, c in zip(rows, cols, strict=True)]
+    rows, cols = np.nonzero(~seen[iy.min() :, ix.min() :])
+    return [
+        (float(lattice.x_mm[ix.min() + c]), float(lattice.y_mm[iy.min() + r]))
+        for r, c in zip(rows, cols, strict=True)
+    ]
 
 
 # --------------------------------------------------------------------------------------------
@@ -300,8 +327,11 @@ class GridGauge:
         return np.stack([self.offset_x_um - turn * y, self.offset_y_um + turn * x], axis=1)
 
     def to_json(self) -> dict[str, float]:
-        return {"offset_x_um": self.offset_x_um, "offset_y_um": self.offset_y_um,
-                "rotation_urad": self.rotation_urad}
+        return {
+            "offset_x_um": self.offset_x_um,
+            "offset_y_um": self.offset_y_um,
+            "rotation_urad": self.rotation_urad,
+        }
 
 
 def gauge_design(position_mm: FloatArray) -> FloatArray:
@@ -348,8 +378,10 @@ def describe_grid(grid: GridMeasurement, lattice: Lattice | None = None) -> dict
         "file": grid.source_file,
         "readings": grid.count,
         "measured_directions": list(grid.measured_directions),
-        "nodes": {"x": int(round((high[0] - low[0]) / lattice.step_mm[0])) + 1,
-                  "y": int(round((high[1] - low[1]) / lattice.step_mm[1])) + 1},
+        "nodes": {
+            "x": int(round((high[0] - low[0]) / lattice.step_mm[0])) + 1,
+            "y": int(round((high[1] - low[1]) / lattice.step_mm[1])) + 1,
+        },
         "step_mm": {"x": lattice.step_mm[0], "y": lattice.step_mm[1]},
         "range_mm": {"x": [float(low[0]), float(high[0])], "y": [float(low[1]), float(high[1])]},
         "upper_axis": grid.upper_axis,

@@ -34,8 +34,9 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 
-def _significant(errors: FloatArray, baseline: FloatArray, line: IntArray,
-                 standard_errors: float) -> bool:
+def _significant(
+    errors: FloatArray, baseline: FloatArray, line: IntArray, standard_errors: float
+) -> bool:
     """Whether ``errors`` beat ``baseline`` in mean square by more than ``standard_errors``
     standard errors of the gain, lines taken as the independent units (the readings of one
     held-out line share its departure)."""
@@ -43,8 +44,11 @@ def _significant(errors: FloatArray, baseline: FloatArray, line: IntArray,
     lines, inverse = np.unique(line[held], return_inverse=True)
     if lines.size < 2:
         return False
-    gain = np.bincount(inverse, weights=baseline[held] ** 2 - errors[held] ** 2,
-                       minlength=lines.size) / held.sum() * lines.size
+    gain = (
+        np.bincount(inverse, weights=baseline[held] ** 2 - errors[held] ** 2, minlength=lines.size)
+        / held.sum()
+        * lines.size
+    )
     return bool(gain.mean() > standard_errors * gain.std(ddof=1) / np.sqrt(lines.size))
 
 
@@ -71,9 +75,16 @@ class _Fold:
 class CrossValidation:
     """K-fold cross-validation of the whole model (module notes)."""
 
-    def __init__(self, readings: Readings, system: RigidSystem, solver: SurfaceSolver,
-                 nodes: tuple[FloatArray, FloatArray], reference: tuple[float, float],
-                 folds: int, directions: Sequence[int]) -> None:
+    def __init__(
+        self,
+        readings: Readings,
+        system: RigidSystem,
+        solver: SurfaceSolver,
+        nodes: tuple[FloatArray, FloatArray],
+        reference: tuple[float, float],
+        folds: int,
+        directions: Sequence[int],
+    ) -> None:
         self.readings = readings
         self.system = system
         self.solver = solver
@@ -111,15 +122,20 @@ class CrossValidation:
             error[held] = values[held] - prediction[held]
         return error
 
-    def _surface(self, folds: IntArray, f: int, residual: FloatArray,
-                 weights: dict[int, float]) -> FloatArray:
+    def _surface(
+        self, folds: IntArray, f: int, residual: FloatArray, weights: dict[int, float]
+    ) -> FloatArray:
         """The surface fitted to the kept readings' ``residual``, at every reading's node."""
         out = np.zeros_like(residual)
         kept = folds != f
         for k in self.directions:
             mine = self.readings.direction == k
-            fit = self.solver.fit(self.node[kept & mine], residual[kept & mine], weights[k],
-                                  key=(id(folds), f, k, weights[k]))
+            fit = self.solver.fit(
+                self.node[kept & mine],
+                residual[kept & mine],
+                weights[k],
+                key=(id(folds), f, k, weights[k]),
+            )
             out[mine] = fit[self.node[mine]]
         return out
 
@@ -128,9 +144,15 @@ class CrossValidation:
         chosen = {}
         for k in self.directions:
             rows = self.readings.direction == k
-            scores = [float(np.mean(self.surface_errors({d: w for d in self.directions},
-                                                        self.point_folds)[rows] ** 2))
-                      for w in candidates]
+            scores = [
+                float(
+                    np.mean(
+                        self.surface_errors({d: w for d in self.directions}, self.point_folds)[rows]
+                        ** 2
+                    )
+                )
+                for w in candidates
+            ]
             chosen[k] = candidates[int(np.argmin(scores))]
         return chosen
 
@@ -164,8 +186,9 @@ class CrossValidation:
             out.append(_Fold(held, base, values, measured))
         return out
 
-    def _pieces(self, term: Term, choice: FunctionChoice, folds: list[_Fold]
-                ) -> tuple[NDArray[np.bool_], FloatArray, FloatArray]:
+    def _pieces(
+        self, term: Term, choice: FunctionChoice, folds: list[_Fold]
+    ) -> tuple[NDArray[np.bool_], FloatArray, FloatArray]:
         """For one candidate: the held-out readings it enters, and its prediction there as
         ``fixed + carry·slope`` (the kernel is linear in the carry): (rows, fixed, slope)."""
         r = self.readings
@@ -179,8 +202,7 @@ class CrossValidation:
             mine = fold.held & (r.direction == term.direction)
             seen = fold.measured[term.id]
             values = fold.node_values[term.id][seen]
-            coefficients = fit_smooth_part(basis, nodes[seen], values,
-                                           choice.smoothing)
+            coefficients = fit_smooth_part(basis, nodes[seen], values, choice.smoothing)
             departures = values - basis.design(nodes[seen]) @ coefficients
             q = r.position[mine, term.argument]
             without = carry_kernel(q, nodes[seen], 0.0) @ departures
@@ -190,9 +212,15 @@ class CrossValidation:
             slope[mine] = lever[mine] * (full - without)
         return rows, fixed, slope
 
-    def choose_functions(self, terms: Sequence[Term], degrees: Sequence[int],
-                         smoothing: Sequence[float], surface: dict[int, float] | None,
-                         sweeps: int, significance: float) -> dict[str, FunctionChoice]:
+    def choose_functions(
+        self,
+        terms: Sequence[Term],
+        degrees: Sequence[int],
+        smoothing: Sequence[float],
+        surface: dict[int, float] | None,
+        sweeps: int,
+        significance: float,
+    ) -> dict[str, FunctionChoice]:
         """Each function's smooth part and carry with the least held-out-line error.
 
         The linear interpolation of the node values (a lookup table) is the default: another
@@ -219,8 +247,9 @@ class CrossValidation:
             predicted = {t.id: self._prediction(t, choices[t.id], folds) for t in mine}
             for _ in range(sweeps):
                 for term in mine:
-                    others = sum((predicted[u.id] for u in mine if u.id != term.id),
-                                 np.zeros_like(values))
+                    others = sum(
+                        (predicted[u.id] for u in mine if u.id != term.id), np.zeros_like(values)
+                    )
                     target = values - base - others
                     lookup = FunctionChoice(1, min(smoothing), 1.0)
                     best = (self._errors(term, lookup, folds, target), lookup)
@@ -236,14 +265,16 @@ class CrossValidation:
                             if np.nanmean(errors**2) < np.nanmean(best[0] ** 2):
                                 best = (errors, FunctionChoice(degree, weight, carry))
                     if best[1] != lookup and not _significant(
-                            best[0], baseline, self.readings.node(term), significance):
+                        best[0], baseline, self.readings.node(term), significance
+                    ):
                         best = (baseline, lookup)
                     choices[term.id] = best[1]
                     predicted[term.id] = self._prediction(term, best[1], folds)
         return choices
 
-    def _errors(self, term: Term, choice: FunctionChoice, folds: list[_Fold],
-                target: FloatArray) -> FloatArray:
+    def _errors(
+        self, term: Term, choice: FunctionChoice, folds: list[_Fold], target: FloatArray
+    ) -> FloatArray:
         rows, fixed, slope = self._pieces(term, choice, folds)
         return np.where(rows, target - fixed - choice.carry * slope, np.nan)
 
@@ -251,9 +282,13 @@ class CrossValidation:
         rows, fixed, slope = self._pieces(term, choice, folds)
         return np.where(rows, fixed + choice.carry * slope, 0.0)
 
-    def line_errors(self, terms: Sequence[Term], choices: dict[str, FunctionChoice],
-                    surface: dict[int, float] | None, axis: int) -> tuple[FloatArray,
-                                                                          NDArray[np.bool_]]:
+    def line_errors(
+        self,
+        terms: Sequence[Term],
+        choices: dict[str, FunctionChoice],
+        surface: dict[int, float] | None,
+        axis: int,
+    ) -> tuple[FloatArray, NDArray[np.bool_]]:
         """Prediction error of the readings on held-out lines along ``axis`` with the given
         choices, and which readings were held out."""
         folds = self._folds(axis, surface)

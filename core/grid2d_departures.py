@@ -144,16 +144,22 @@ class NodeDepartureBasis(Basis):
 
     def design(self, position_mm: ArrayLike) -> FloatArray:
         q = np.atleast_1d(self._clamp(position_mm))
-        return np.hstack([self.smooth.design(q),
-                          carry_kernel(q, np.asarray(self.nodes_mm), self.carry)])
+        return np.hstack(
+            [self.smooth.design(q), carry_kernel(q, np.asarray(self.nodes_mm), self.carry)]
+        )
 
     def describe(self) -> dict[str, object]:
-        return {"kind": self.kind, "smooth": self.smooth.describe(),
-                "nodes_mm": list(self.nodes_mm), "carry": self.carry}
+        return {
+            "kind": self.kind,
+            "smooth": self.smooth.describe(),
+            "nodes_mm": list(self.nodes_mm),
+            "carry": self.carry,
+        }
 
 
-def fit_smooth_part(basis: SmoothBasis, nodes_mm: FloatArray, values: FloatArray,
-                    weight: float) -> FloatArray:
+def fit_smooth_part(
+    basis: SmoothBasis, nodes_mm: FloatArray, values: FloatArray, weight: float
+) -> FloatArray:
     """Coefficients of the smooth part through node values (module notes).
 
     Penalised least squares over the nodes, ``Σ (value_n − s(q_n))² + weight·|D c|²``. The

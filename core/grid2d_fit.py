@@ -118,8 +118,9 @@ class GridFitRequest:
         if not self.smoothing or any(not s > 0 for s in self.smoothing + self.surface_smoothing):
             raise UserError("smoothing weights must be positive")
         if not self.significance >= 0:
-            raise UserError(f"significance must be a number of standard errors >= 0, got "
-                            f"{self.significance}")
+            raise UserError(
+                f"significance must be a number of standard errors >= 0, got {self.significance}"
+            )
 
 
 def _upper_axis(grids: Sequence[GridMeasurement], request: GridFitRequest) -> str | None:
@@ -127,8 +128,10 @@ def _upper_axis(grids: Sequence[GridMeasurement], request: GridFitRequest) -> st
         return request.upper_axis
     stated = {g.upper_axis for g in grids}
     if len(stated) > 1:
-        raise UserError("the grids disagree on which axis is the upper one "
-                        f"({', '.join(sorted(str(s) for s in stated))}); give it")
+        raise UserError(
+            "the grids disagree on which axis is the upper one "
+            f"({', '.join(sorted(str(s) for s in stated))}); give it"
+        )
     return stated.pop()
 
 
@@ -159,8 +162,11 @@ def _openblas_libraries() -> list[ctypes.CDLL]:
     libraries = []
     try:
         with open("/proc/self/maps", encoding="ascii", errors="replace") as maps:
-            paths = {line.split()[-1] for line in maps
-                     if "openblas" in line.lower() and ".so" in line.split()[-1]}
+            paths = {
+                line.split()[-1]
+                for line in maps
+                if "openblas" in line.lower() and ".so" in line.split()[-1]
+            }
     except OSError:
         return []
     for path in sorted(paths):
@@ -191,20 +197,22 @@ def identify_grid(
         return _identify(grids, request or GridFitRequest())
 
 
-def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
-              request: GridFitRequest) -> GridIdentification:
+def _identify(
+    grids: GridMeasurement | Sequence[GridMeasurement], request: GridFitRequest
+) -> GridIdentification:
     grid_list = [grids] if isinstance(grids, GridMeasurement) else list(grids)
     names = [g.name for g in grid_list]
     if len(set(names)) != len(names):
-        raise UserError(f"two grids are named alike ({', '.join(names)}): give them distinct "
-                        "names")
+        raise UserError(f"two grids are named alike ({', '.join(names)}): give them distinct names")
     lattice = common_lattice(grid_list)
     reference = request.reference_mm or (float(lattice.x_mm[0]), float(lattice.y_mm[0]))
     nodes = (lattice.x_mm, lattice.y_mm)
     for k, name in enumerate(GRID_AXES):
         if not nodes[k][0] - 1e-9 <= reference[k] <= nodes[k][-1] + 1e-9:
-            raise UserError(f"the reference {name} = {reference[k]:g} mm lies outside the grid "
-                            f"({nodes[k][0]:g} to {nodes[k][-1]:g} mm)")
+            raise UserError(
+                f"the reference {name} = {reference[k]:g} mm lies outside the grid "
+                f"({nodes[k][0]:g} to {nodes[k][-1]:g} mm)"
+            )
     readings = stack_readings(grid_list, lattice)
     directions = sorted({int(d) for d in np.unique(readings.direction)})
     upper = _upper_axis(grid_list, request)
@@ -212,8 +220,9 @@ def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
     if upper is not None and YAW[upper].direction in directions:
         terms.append(YAW[upper])
     square = directions == [0, 1]
-    system = build_system(readings, lattice, terms, reference, len(grid_list), set(directions),
-                          square)
+    system = build_system(
+        readings, lattice, terms, reference, len(grid_list), set(directions), square
+    )
     solver = SurfaceSolver(lattice)
     cv = CrossValidation(readings, system, solver, nodes, reference, request.folds, directions)
 
@@ -227,9 +236,13 @@ def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
     covariance = sigma**2 * inverse @ normal @ inverse
     slices = system.block_slices()
     scalars = dict(zip(system.scalar_names, reduced[slices[-1]], strict=True))
-    scalar_std = dict(zip(system.scalar_names,
-                          np.sqrt(np.maximum(np.diag(covariance[slices[-1], slices[-1]]), 0)),
-                          strict=True))
+    scalar_std = dict(
+        zip(
+            system.scalar_names,
+            np.sqrt(np.maximum(np.diag(covariance[slices[-1], slices[-1]]), 0)),
+            strict=True,
+        )
+    )
 
     # 2. the surface on what they leave
     weights = cv.choose_surface(request.surface_smoothing) if request.surface else None
@@ -239,26 +252,35 @@ def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
         surface = np.zeros((2,) + lattice.shape)
         for k in directions:
             rows = readings.direction == k
-            surface[k] = solver.as_grid(solver.fit(cv.node[rows], rigid_residual[rows],
-                                                   weights[k]))
-        on_node = np.where(readings.direction == 0, surface[0][readings.iy, readings.ix],
-                           surface[1][readings.iy, readings.ix])
+            surface[k] = solver.as_grid(solver.fit(cv.node[rows], rigid_residual[rows], weights[k]))
+        on_node = np.where(
+            readings.direction == 0,
+            surface[0][readings.iy, readings.ix],
+            surface[1][readings.iy, readings.ix],
+        )
         residual = rigid_residual - on_node
 
     # 3. each function between its nodes
-    choices = cv.choose_functions(terms, request.degrees, request.smoothing, weights,
-                                  request.sweeps, request.significance)
+    choices = cv.choose_functions(
+        terms, request.degrees, request.smoothing, weights, request.sweeps, request.significance
+    )
     functions: dict[str, ErrorFunction] = {}
     function_std: dict[str, FloatArray] = {}
     for index, term in enumerate(terms):
         values = system.node_values(reduced, index)
-        functions[term.id] = _function(term, choices[term.id], nodes[term.argument], values,
-                                       _measured(readings, term, nodes[term.argument].size),
-                                       reference[term.argument])
+        functions[term.id] = _function(
+            term,
+            choices[term.id],
+            nodes[term.argument],
+            values,
+            _measured(readings, term, nodes[term.argument].size),
+            reference[term.argument],
+        )
         null = system.transforms[index]
         block = slices[index]
-        function_std[term.id] = np.sqrt(np.maximum(
-            np.einsum("ij,jk,ik->i", null, covariance[block, block], null), 0.0))
+        function_std[term.id] = np.sqrt(
+            np.maximum(np.einsum("ij,jk,ik->i", null, covariance[block, block], null), 0.0)
+        )
 
     gauges = {
         grid.name: GridGauge(
@@ -271,8 +293,7 @@ def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
     measured = np.zeros(lattice.shape, dtype=bool)
     measured[readings.iy, readings.ix] = True
 
-    def by_direction(values: FloatArray, rows: NDArray[np.bool_] | None = None
-                     ) -> dict[str, float]:
+    def by_direction(values: FloatArray, rows: NDArray[np.bool_] | None = None) -> dict[str, float]:
         mask = np.ones(values.size, dtype=bool) if rows is None else rows
         return {GRID_AXES[k]: rms(values[mask & (readings.direction == k)]) for k in directions}
 
@@ -284,33 +305,42 @@ def _identify(grids: GridMeasurement | Sequence[GridMeasurement],
                 continue
             table = {t.id: FunctionChoice(1, min(request.smoothing), 1.0) for t in terms}
             lookup, _ = cv.line_errors(terms, table, weights, line_axis)
-            between[label] = {"model": by_direction(ours, held),
-                              "node_values_interpolated": by_direction(lookup, held)}
+            between[label] = {
+                "model": by_direction(ours, held),
+                "node_values_interpolated": by_direction(lookup, held),
+            }
     statistics = {
         "readings": int(readings.value.size),
         "grids": len(grid_list),
-        "rms_um": {"rigid_body": by_direction(rigid_residual),
-                   "with_surface": by_direction(residual)},
-        "cv_rms_um": {**by_direction(cv.surface_errors(weights, cv.point_folds)),
-                      "method": f"{request.folds}-fold cross-validation over held-out points "
-                                "spread over the grid (the whole model refitted without them)"},
+        "rms_um": {
+            "rigid_body": by_direction(rigid_residual),
+            "with_surface": by_direction(residual),
+        },
+        "cv_rms_um": {
+            **by_direction(cv.surface_errors(weights, cv.point_folds)),
+            "method": f"{request.folds}-fold cross-validation over held-out points "
+            "spread over the grid (the whole model refitted without them)",
+        },
         "cv_between_lines_rms_um": {
             **between,
             "method": f"{request.folds}-fold cross-validation over held-out lattice lines "
-                      "(rows, columns; the whole model refitted without them): the model's "
-                      "prediction halfway between measured lines, and the linear "
-                      "interpolation of the node values (a lookup table) for comparison"},
+            "(rows, columns; the whole model refitted without them): the model's "
+            "prediction halfway between measured lines, and the linear "
+            "interpolation of the node values (a lookup table) for comparison",
+        },
         "sigma_um": sigma,
         "effective_parameters": edf,
         "uncertainty": "standard uncertainties of the node values from the scatter of the "
-                       "readings about the rigid-body terms, readings taken as independent",
+        "readings about the rigid-body terms, readings taken as independent",
     }
     choice_table: dict[str, dict[str, float]] = {
         eid: {"degree": c.degree, "smoothing": c.smoothing, "carry": c.carry}
-        for eid, c in choices.items()}
+        for eid, c in choices.items()
+    }
     if weights is not None:
-        choice_table["surface"] = {f"smoothing_{GRID_AXES[k].lower()}": weights[k]
-                                   for k in directions}
+        choice_table["surface"] = {
+            f"smoothing_{GRID_AXES[k].lower()}": weights[k] for k in directions
+        }
     return GridIdentification(
         lattice=lattice,
         reference_mm=(float(reference[0]), float(reference[1])),
@@ -335,8 +365,14 @@ def _measured(readings: Readings, term: Term, size: int) -> NDArray[np.bool_]:
     return seen
 
 
-def _function(term: Term, choice: FunctionChoice, nodes: FloatArray, values: FloatArray,
-              measured: NDArray[np.bool_], reference: float) -> ErrorFunction:
+def _function(
+    term: Term,
+    choice: FunctionChoice,
+    nodes: FloatArray,
+    values: FloatArray,
+    measured: NDArray[np.bool_],
+    reference: float,
+) -> ErrorFunction:
     """The error function: its smooth part plus its measured nodes' departures (step 3).
 
     The function is its node values at the measured nodes. A reference between lattice nodes
@@ -344,22 +380,26 @@ def _function(term: Term, choice: FunctionChoice, nodes: FloatArray, values: Flo
     there too.
     """
     basis = smooth_basis(nodes, choice.degree)
-    coefficients = fit_smooth_part(basis, nodes[measured], values[measured],
-                                   choice.smoothing)
+    coefficients = fit_smooth_part(basis, nodes[measured], values[measured], choice.smoothing)
     at = nodes[measured]
     value = values[measured]
     if np.min(np.abs(nodes - reference)) > 1e-9:
         order = np.searchsorted(at, reference)
         at = np.insert(at, order, reference)
-        value = np.insert(value, order, float(NodeTableBasis(tuple(nodes)).evaluate(
-            reference, values)))
+        value = np.insert(
+            value, order, float(NodeTableBasis(tuple(nodes)).evaluate(reference, values))
+        )
     departures = value - basis.design(at) @ coefficients
-    return ErrorFunction(term.id, NodeDepartureBasis(basis, tuple(at), choice.carry),
-                         np.concatenate([coefficients, departures]))
+    return ErrorFunction(
+        term.id,
+        NodeDepartureBasis(basis, tuple(at), choice.carry),
+        np.concatenate([coefficients, departures]),
+    )
 
 
-def _per_grid(grid_list: Sequence[GridMeasurement], readings: Readings,
-              residual: FloatArray) -> dict[str, FloatArray]:
+def _per_grid(
+    grid_list: Sequence[GridMeasurement], readings: Readings, residual: FloatArray
+) -> dict[str, FloatArray]:
     out = {}
     for g, grid in enumerate(grid_list):
         table = np.full((grid.count, 2), np.nan)

@@ -68,8 +68,7 @@ class GridIdentification:
         q = np.atleast_2d(np.asarray(position_mm, dtype=float))
         if self.surface_um is None:
             return np.zeros((q.shape[0], 2))
-        return np.stack([_bilinear(self.lattice, self.surface_um[k], q) for k in range(2)],
-                        axis=1)
+        return np.stack([_bilinear(self.lattice, self.surface_um[k], q) for k in range(2)], axis=1)
 
     def error(self, position_mm: FloatArray, *, surface: bool = True) -> FloatArray:
         """(n, 2) machine error in X and Y (µm) at the positions: measured − commanded less the
@@ -81,8 +80,12 @@ class GridIdentification:
         """True where a position lies outside the lattice or next to no measured node."""
         q = np.atleast_2d(np.asarray(position_mm, dtype=float))
         lat = self.lattice
-        outside = ((q[:, 0] < lat.x_mm[0] - 1e-9) | (q[:, 0] > lat.x_mm[-1] + 1e-9) |
-                   (q[:, 1] < lat.y_mm[0] - 1e-9) | (q[:, 1] > lat.y_mm[-1] + 1e-9))
+        outside = (
+            (q[:, 0] < lat.x_mm[0] - 1e-9)
+            | (q[:, 0] > lat.x_mm[-1] + 1e-9)
+            | (q[:, 1] < lat.y_mm[0] - 1e-9)
+            | (q[:, 1] > lat.y_mm[-1] + 1e-9)
+        )
         ix, iy = lat.index(np.clip(q, [lat.x_mm[0], lat.y_mm[0]], [lat.x_mm[-1], lat.y_mm[-1]]))
         return outside | ~self.measured_nodes[iy, ix]
 
@@ -128,15 +131,25 @@ class GridIdentification:
                 "range": float(np.ptp(value)),
             }
         if self.squareness_urad is not None:
-            parameters["EC0Y"] = {"basis": None, "coefficients": [], "position_mm": [],
-                                  "value": [self.squareness_urad],
-                                  "std": [self.squareness_std_urad], "unit": "urad"}
+            parameters["EC0Y"] = {
+                "basis": None,
+                "coefficients": [],
+                "position_mm": [],
+                "value": [self.squareness_urad],
+                "std": [self.squareness_std_urad],
+                "unit": "urad",
+            }
         surface: dict[str, Any] | None = None
         if self.surface_um is not None:
-            surface = {"x_mm": self.lattice.x_mm.tolist(), "y_mm": self.lattice.y_mm.tolist(),
-                       "x_um": self.surface_um[0].tolist(), "y_um": self.surface_um[1].tolist(),
-                       "rms_um": {a: rms(self.surface_um[k][self.measured_nodes])
-                                  for k, a in enumerate(GRID_AXES)}}
+            surface = {
+                "x_mm": self.lattice.x_mm.tolist(),
+                "y_mm": self.lattice.y_mm.tolist(),
+                "x_um": self.surface_um[0].tolist(),
+                "y_um": self.surface_um[1].tolist(),
+                "rms_um": {
+                    a: rms(self.surface_um[k][self.measured_nodes]) for k, a in enumerate(GRID_AXES)
+                },
+            }
         return {
             "reference_mm": list(self.reference_mm),
             "upper_axis": self.upper_axis,
@@ -144,13 +157,14 @@ class GridIdentification:
             "squareness": {
                 "EC0Y_urad": self.squareness_urad,
                 "EC0Y_std_urad": self.squareness_std_urad,
-                "EC0Y_arcsec": None if self.squareness_urad is None else
-                self.squareness_urad * ARCSEC_PER_URAD,
+                "EC0Y_arcsec": None
+                if self.squareness_urad is None
+                else self.squareness_urad * ARCSEC_PER_URAD,
                 "EC0Y_mean_slope_urad": self.squareness_mean_urad,
                 "definition": "EC0Y: squareness of Y to X at the reference (X gains "
-                              "-EC0Y*y); EC0Y_mean_slope: from the map's least-squares slopes "
-                              "averaged over the grid, -(dEx/dy + dEy/dx), the negative of "
-                              "the orthogonality Aerotech's tools print",
+                "-EC0Y*y); EC0Y_mean_slope: from the map's least-squares slopes "
+                "averaged over the grid, -(dEx/dy + dEy/dx), the negative of "
+                "the orthogonality Aerotech's tools print",
             },
             "gauges": {name: g.to_json() for name, g in self.gauges.items()},
             "surface": surface,
@@ -167,5 +181,9 @@ def _bilinear(lattice: Lattice, values: FloatArray, q: FloatArray) -> FloatArray
     i = np.clip(np.floor(fx).astype(int), 0, lattice.x_mm.size - 2)
     j = np.clip(np.floor(fy).astype(int), 0, lattice.y_mm.size - 2)
     tx, ty = fx - i, fy - j
-    return np.asarray(values[j, i] * (1 - tx) * (1 - ty) + values[j, i + 1] * tx * (1 - ty)
-                      + values[j + 1, i] * (1 - tx) * ty + values[j + 1, i + 1] * tx * ty)
+    return np.asarray(
+        values[j, i] * (1 - tx) * (1 - ty)
+        + values[j, i + 1] * tx * (1 - ty)
+        + values[j + 1, i] * (1 - tx) * ty
+        + values[j + 1, i + 1] * tx * ty
+    )

@@ -36,23 +36,29 @@ _ENVIRONMENT = ("air_temp_c", "material_temp_c", "pressure_kpa", "humidity_pct")
 
 def _check_name(name: str) -> None:
     if not isinstance(name, str) or not name or "/" in name or name.startswith("."):
-        raise UserError(f"grid name {name!r}: use a non-empty name without '/', not starting "
-                        "with '.'")
+        raise UserError(
+            f"grid name {name!r}: use a non-empty name without '/', not starting with '.'"
+        )
 
 
-def grid_group(grid: GridMeasurement, identification: dict[str, Any] | None = None,
-               fitted_with: list[str] | None = None) -> Group:
+def grid_group(
+    grid: GridMeasurement,
+    identification: dict[str, Any] | None = None,
+    fitted_with: list[str] | None = None,
+) -> Group:
     """The ``/grids/<name>`` group of a grid (module notes)."""
     digest = hashlib.sha256(grid.source_bytes).hexdigest()
-    group = Group({
-        "name": grid.name,
-        "source_file": Path(grid.source_file).name if grid.source_file else "",
-        "upper_axis": grid.upper_axis or "",
-        "units_json": json.dumps(dict(grid.units), ensure_ascii=False),
-        "metadata_json": json.dumps(dict(grid.metadata), ensure_ascii=False),
-        "imported": datetime.now(UTC).isoformat(timespec="seconds"),
-        "sha256": digest,
-    })
+    group = Group(
+        {
+            "name": grid.name,
+            "source_file": Path(grid.source_file).name if grid.source_file else "",
+            "upper_axis": grid.upper_axis or "",
+            "units_json": json.dumps(dict(grid.units), ensure_ascii=False),
+            "metadata_json": json.dumps(dict(grid.metadata), ensure_ascii=False),
+            "imported": datetime.now(UTC).isoformat(timespec="seconds"),
+            "sha256": digest,
+        }
+    )
     group.children["position_mm"] = Dataset(np.asarray(grid.position_mm), {"unit": "mm"})
     group.children["deviation_um"] = Dataset(np.asarray(grid.deviation_um), {"unit": "um"})
     if grid.file_lines is not None:
@@ -60,22 +66,30 @@ def grid_group(grid: GridMeasurement, identification: dict[str, Any] | None = No
     for key in _ENVIRONMENT:
         value = getattr(grid, key)
         if value is not None:
-            unit = {"air_temp_c": "degC", "material_temp_c": "degC", "pressure_kpa": "kPa",
-                    "humidity_pct": "%RH"}[key]
+            unit = {
+                "air_temp_c": "degC",
+                "material_temp_c": "degC",
+                "pressure_kpa": "kPa",
+                "humidity_pct": "%RH",
+            }[key]
             group.children[key] = Dataset(np.asarray(value), {"unit": unit})
-    group.children["source"] = Dataset(np.frombuffer(grid.source_bytes, dtype=np.uint8).copy(),
-                                       {"filename": Path(grid.source_file).name,
-                                        "sha256": digest})
+    group.children["source"] = Dataset(
+        np.frombuffer(grid.source_bytes, dtype=np.uint8).copy(),
+        {"filename": Path(grid.source_file).name, "sha256": digest},
+    )
     if identification is not None:
-        group.children["identification"] = Group(children={
-            "report_json": Dataset(np.array(json.dumps(identification), dtype=object)),
-            "grids": Dataset(np.array(fitted_with or [grid.name], dtype=object)),
-        })
+        group.children["identification"] = Group(
+            children={
+                "report_json": Dataset(np.array(json.dumps(identification), dtype=object)),
+                "grids": Dataset(np.array(fitted_with or [grid.name], dtype=object)),
+            }
+        )
     return group
 
 
 def grid_from_group(group: Group) -> GridMeasurement:
     """The grid stored in a ``/grids/<name>`` group."""
+
     def array(key: str) -> np.ndarray | None:
         child = group.children.get(key)
         return np.asarray(child.value) if isinstance(child, Dataset) else None
@@ -98,14 +112,20 @@ def grid_from_group(group: Group) -> GridMeasurement:
     )
 
 
-def put_grid(project: Project, grid: GridMeasurement,
-             identification: dict[str, Any] | None = None,
-             fitted_with: list[str] | None = None, *, replace: bool = False) -> None:
+def put_grid(
+    project: Project,
+    grid: GridMeasurement,
+    identification: dict[str, Any] | None = None,
+    fitted_with: list[str] | None = None,
+    *,
+    replace: bool = False,
+) -> None:
     """Add a grid (and the identification it took part in) to the project in memory."""
     _check_name(grid.name)
     if grid.name in project.grids and not replace:
-        raise UserError(f"the project already has a grid {grid.name!r}; give another name or "
-                        "replace it")
+        raise UserError(
+            f"the project already has a grid {grid.name!r}; give another name or replace it"
+        )
     project.grids[grid.name] = grid_group(grid, identification, fitted_with)
 
 
@@ -115,8 +135,9 @@ def grid_names(project: Project) -> list[str]:
 
 def get_grid(project: Project, name: str) -> GridMeasurement:
     if name not in project.grids:
-        raise UserError(f"no grid {name!r} in the project (it has "
-                        f"{', '.join(project.grids) or 'none'})")
+        raise UserError(
+            f"no grid {name!r} in the project (it has {', '.join(project.grids) or 'none'})"
+        )
     try:
         return grid_from_group(project.grids[name])
     except (KeyError, ValueError, TypeError) as exc:

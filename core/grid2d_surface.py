@@ -39,8 +39,9 @@ class SurfaceSolver:
         along = np.arange(self.size) % width
         across = np.arange(self.size) // width
         banded = np.zeros((width + 1, self.size))  # upper banded form (solveh_banded)
-        banded[width] = ((along > 0).astype(float) + (along < width - 1) + (across > 0)
-                         + (across < length - 1))
+        banded[width] = (
+            (along > 0).astype(float) + (along < width - 1) + (across > 0) + (across < length - 1)
+        )
         banded[width - 1, 1:] = np.where(along[1:] > 0, -1.0, 0.0)
         banded[0, width:] = -1.0
         self._laplacian = banded
@@ -52,8 +53,9 @@ class SurfaceSolver:
             return np.asarray(ix * self._width + iy, dtype=np.int64)
         return np.asarray(iy * self._width + ix, dtype=np.int64)
 
-    def fit(self, node: IntArray, values: FloatArray, weight: float,
-            key: Hashable | None = None) -> FloatArray:
+    def fit(
+        self, node: IntArray, values: FloatArray, weight: float, key: Hashable | None = None
+    ) -> FloatArray:
         """Node values (solver numbering) of the surface through ``values`` read at ``node``.
 
         The matrix depends only on which nodes are read and the weight: with a ``key`` naming

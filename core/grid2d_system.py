@@ -82,17 +82,36 @@ def stack_readings(grids: Sequence[GridMeasurement], lattice: Lattice) -> Readin
         ix, iy = lattice.index(grid.position_mm)
         for k in range(2):
             ok = np.isfinite(grid.deviation_um[:, k])
-            parts.append((grid.position_mm[ok], grid.deviation_um[ok, k], np.full(ok.sum(), k),
-                          np.full(ok.sum(), g), ix[ok], iy[ok]))
+            parts.append(
+                (
+                    grid.position_mm[ok],
+                    grid.deviation_um[ok, k],
+                    np.full(ok.sum(), k),
+                    np.full(ok.sum(), g),
+                    ix[ok],
+                    iy[ok],
+                )
+            )
     stacked = [np.concatenate([p[i] for p in parts]) for i in range(6)]
-    return Readings(stacked[0], stacked[1], stacked[2].astype(np.int64),
-                    stacked[3].astype(np.int64), stacked[4].astype(np.int64),
-                    stacked[5].astype(np.int64))
+    return Readings(
+        stacked[0],
+        stacked[1],
+        stacked[2].astype(np.int64),
+        stacked[3].astype(np.int64),
+        stacked[4].astype(np.int64),
+        stacked[5].astype(np.int64),
+    )
 
 
-def build_system(readings: Readings, lattice: Lattice, terms: Sequence[Term],
-                 reference: tuple[float, float], grid_count: int, directions: set[int],
-                 square: bool) -> RigidSystem:
+def build_system(
+    readings: Readings,
+    lattice: Lattice,
+    terms: Sequence[Term],
+    reference: tuple[float, float],
+    grid_count: int,
+    directions: set[int],
+    square: bool,
+) -> RigidSystem:
     """The node-table system of the rigid-body model (module notes) with its gauges."""
     r = readings
     m = r.value.size
@@ -132,8 +151,9 @@ def build_system(readings: Readings, lattice: Lattice, terms: Sequence[Term],
     blocks.append(sparse.csr_matrix(np.stack(extra, axis=1)))
     transforms.append(np.eye(len(extra)))
     penalties.append(np.zeros((len(extra), len(extra))))
-    return RigidSystem(sparse.hstack(blocks).tocsr(), transforms, penalties, bases, names,
-                       list(terms))
+    return RigidSystem(
+        sparse.hstack(blocks).tocsr(), transforms, penalties, bases, names, list(terms)
+    )
 
 
 @dataclass
@@ -155,7 +175,7 @@ class RigidSystem:
         out = np.zeros((size_in, size_out))
         i = j = 0
         for t in self.transforms:
-            out[i:i + t.shape[0], j:j + t.shape[1]] = t
+            out[i : i + t.shape[0], j : j + t.shape[1]] = t
             i += t.shape[0]
             j += t.shape[1]
         return out
@@ -166,7 +186,7 @@ class RigidSystem:
         out = np.zeros((size, size))
         i = 0
         for p in self.penalties:
-            out[i:i + p.shape[0], i:i + p.shape[0]] = p
+            out[i : i + p.shape[0], i : i + p.shape[0]] = p
             i += p.shape[0]
         return out
 
@@ -178,8 +198,7 @@ class RigidSystem:
     def gram(self, values: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Reduced normal matrix and right-hand side of all readings."""
         t = self.transform
-        return (t.T @ (self.design.T @ self.design).toarray() @ t,
-                t.T @ (self.design.T @ values))
+        return (t.T @ (self.design.T @ self.design).toarray() @ t, t.T @ (self.design.T @ values))
 
     def solve(self, values: FloatArray) -> FloatArray:
         """Reduced coefficients fitted to all readings."""
@@ -198,8 +217,12 @@ class RigidSystem:
             for f in range(count):
                 rows = self.design[folds == f]
                 inner = (rows.T @ rows).toarray()
-                solutions.append(solve(t.T @ (total - inner) @ t + self.penalty,
-                                       t.T @ (total_rhs - rows.T @ values[folds == f])))
+                solutions.append(
+                    solve(
+                        t.T @ (total - inner) @ t + self.penalty,
+                        t.T @ (total_rhs - rows.T @ values[folds == f]),
+                    )
+                )
             cached = (folds, solutions)
             self._fold_cache[key] = cached
         return cached[1]

@@ -36,8 +36,12 @@ from .io.table_layout import ColumnRef, column_refs
 from .io.units import DEVIATION_FACTOR, POSITION_FACTOR, PRESSURE_FACTOR_KPA, normalise_unit
 
 #: Pressure units (to kPa). Aerotech's Accuracy2D files give mmHg.
-PRESSURE_TO_KPA = {**PRESSURE_FACTOR_KPA, "mmhg": 0.1333223874, "torr": 0.1333223684,
-                   "inhg": 3.386389}
+PRESSURE_TO_KPA = {
+    **PRESSURE_FACTOR_KPA,
+    "mmhg": 0.1333223874,
+    "torr": 0.1333223684,
+    "inhg": 3.386389,
+}
 LENGTH_UNITS = ("um", "nm", "mm", "m", "in")
 TEMPERATURE_UNITS = {"c": 0.0, "degc": 0.0, "°c": 0.0, "k": -273.15}
 #: Values outside these ranges (in volucal's units) mean a wrong column or unit.
@@ -47,13 +51,31 @@ PLAUSIBLE = {
     "pressure": (50.0, 120.0, "kPa"),
     "humidity": (0.0, 100.0, "%RH"),
 }
-_SYMBOL = {"um": "µm", "c": "°C", "degc": "°C", "°c": "°C", "k": "K", "mmhg": "mmHg",
-           "inhg": "inHg", "kpa": "kPa", "hpa": "hPa", "pa": "Pa", "torr": "Torr"}
+_SYMBOL = {
+    "um": "µm",
+    "c": "°C",
+    "degc": "°C",
+    "°c": "°C",
+    "k": "K",
+    "mmhg": "mmHg",
+    "inhg": "inHg",
+    "kpa": "kPa",
+    "hpa": "hPa",
+    "pa": "Pa",
+    "torr": "Torr",
+}
 _UNIT_IN_NAME = re.compile(r"^(?P<name>.*?)\s*(?:\[(?P<b>[^\]]*)\]|\((?P<p>[^)]*)\))\s*$")
 _KIND = {
-    "x": "position", "y": "position", "measured_x": "position", "measured_y": "position",
-    "deviation_x": "deviation", "deviation_y": "deviation", "air_temp": "temperature",
-    "material_temp": "temperature", "pressure": "pressure", "humidity": "humidity",
+    "x": "position",
+    "y": "position",
+    "measured_x": "position",
+    "measured_y": "position",
+    "deviation_x": "deviation",
+    "deviation_y": "deviation",
+    "air_temp": "temperature",
+    "material_temp": "temperature",
+    "pressure": "pressure",
+    "humidity": "humidity",
 }
 
 
@@ -181,10 +203,12 @@ def _layout(source: SourceText, fmt: GridFormat) -> _Layout:
         if marker is None:
             raise source.error(
                 f"no {fmt.data_marker!r} line before the data: the file is cut short or is not "
-                "in this layout", source.last_line,
+                "in this layout",
+                source.last_line,
             )
-        header_line = next((n for n in range(marker - 1, 0, -1)
-                            if not _is_comment(source.lines[n - 1], fmt)), None)
+        header_line = next(
+            (n for n in range(marker - 1, 0, -1) if not _is_comment(source.lines[n - 1], fmt)), None
+        )
         first = marker + 1
         probe = source.lines[header_line - 1] if header_line else ""
         if header_line is not None and all(_numeric(t) for t in probe.split()):
@@ -202,8 +226,12 @@ def _layout(source: SourceText, fmt: GridFormat) -> _Layout:
     delimiter = _delimiter(fmt, probe)
     header: tuple[str, ...] = ()
     if header_line is not None:
-        header = _merge_units(tuple(h.strip().strip('"').strip("'") for h in
-                                    split_fields(source.lines[header_line - 1], delimiter)))
+        header = _merge_units(
+            tuple(
+                h.strip().strip('"').strip("'")
+                for h in split_fields(source.lines[header_line - 1], delimiter)
+            )
+        )
     return _Layout(header, header_line, first, delimiter)
 
 
@@ -245,8 +273,10 @@ def _resolve_columns(source: SourceText, layout: _Layout, fmt: GridFormat) -> di
         ref = getattr(fmt.columns, f.name)
         if isinstance(ref, int):
             if layout.header and ref > len(layout.header):
-                raise source.error(f"column {f.name} = {ref}, but the header has "
-                                   f"{len(layout.header)} columns", where)
+                raise source.error(
+                    f"column {f.name} = {ref}, but the header has {len(layout.header)} columns",
+                    where,
+                )
             columns[f.name] = ref - 1
             continue
         wanted = _plain(ref) if isinstance(ref, str) else f.name
@@ -256,17 +286,27 @@ def _resolve_columns(source: SourceText, layout: _Layout, fmt: GridFormat) -> di
             columns[f.name] = found[0]
         elif ref is not None or f.name in ("x", "y"):
             if not layout.header:
-                raise source.error(f"the file has no header row: map the {f.name} column by "
-                                   f"number (e.g. {f.name}=1)", where)
-            raise source.error(f"no {f.name} column named {ref or f.name!r}; the header has "
-                               f"{', '.join(repr(h) for h in layout.header)}", where)
+                raise source.error(
+                    f"the file has no header row: map the {f.name} column by "
+                    f"number (e.g. {f.name}=1)",
+                    where,
+                )
+            raise source.error(
+                f"no {f.name} column named {ref or f.name!r}; the header has "
+                f"{', '.join(repr(h) for h in layout.header)}",
+                where,
+            )
     for axis in ("x", "y"):
         if f"measured_{axis}" in columns and f"deviation_{axis}" in columns:
-            raise source.error(f"both measured_{axis} and deviation_{axis} are mapped: map one",
-                               where)
+            raise source.error(
+                f"both measured_{axis} and deviation_{axis} are mapped: map one", where
+            )
     if not any(k in columns for k in ("measured_x", "measured_y", "deviation_x", "deviation_y")):
-        raise source.error("no measured or deviation column is mapped: map measured_x/"
-                           "measured_y or deviation_x/deviation_y", where)
+        raise source.error(
+            "no measured or deviation column is mapped: map measured_x/"
+            "measured_y or deviation_x/deviation_y",
+            where,
+        )
     return columns
 
 
@@ -275,42 +315,66 @@ def _resolve_units(
 ) -> tuple[dict[str, str], dict[str, str]]:
     """Unit of each quantity kind used (normalised) and where it came from."""
     where = layout.header_line or layout.first_data_line
-    declared = {"position": fmt.position_unit, "deviation": fmt.deviation_unit,
-                "temperature": fmt.temperature_unit, "pressure": fmt.pressure_unit,
-                "humidity": "%"}
-    option = {"position": "--position-unit mm", "deviation": "--deviation-unit um",
-              "temperature": "--temperature-unit C", "pressure": "--pressure-unit hPa"}
-    allowed = {"position": LENGTH_UNITS, "deviation": LENGTH_UNITS,
-               "temperature": tuple(TEMPERATURE_UNITS), "pressure": tuple(PRESSURE_TO_KPA),
-               "humidity": ("%", "pct", "%rh", "rh")}
+    declared = {
+        "position": fmt.position_unit,
+        "deviation": fmt.deviation_unit,
+        "temperature": fmt.temperature_unit,
+        "pressure": fmt.pressure_unit,
+        "humidity": "%",
+    }
+    option = {
+        "position": "--position-unit mm",
+        "deviation": "--deviation-unit um",
+        "temperature": "--temperature-unit C",
+        "pressure": "--pressure-unit hPa",
+    }
+    allowed = {
+        "position": LENGTH_UNITS,
+        "deviation": LENGTH_UNITS,
+        "temperature": tuple(TEMPERATURE_UNITS),
+        "pressure": tuple(PRESSURE_TO_KPA),
+        "humidity": ("%", "pct", "%rh", "rh"),
+    }
     units: dict[str, str] = {}
     notes: dict[str, str] = {}
     for key, index in columns.items():
         kind = _KIND[key]
         header_unit = header_name_unit(layout.header[index])[1] if layout.header else None
         unit = declared[kind]
-        if unit is not None and header_unit is not None and kind != "humidity" and \
-                normalise_unit(unit).lower() != header_unit.lower():
+        if (
+            unit is not None
+            and header_unit is not None
+            and kind != "humidity"
+            and normalise_unit(unit).lower() != header_unit.lower()
+        ):
             raise source.error(
                 f"column {layout.header[index]!r} ({key}) says {header_unit!r} but the "
-                f"{kind} unit is declared as {unit!r}: correct one of them", where)
+                f"{kind} unit is declared as {unit!r}: correct one of them",
+                where,
+            )
         chosen = normalise_unit(unit) if unit is not None else header_unit
         label = layout.header[index] if layout.header else f"column {index + 1}"
         if chosen is None:
             raise source.error(
                 f"no unit for {label!r} ({key}): the file does not state it; give it "
-                f"({option[kind]}, or a unit in the header such as '{key} [mm]')", where)
+                f"({option[kind]}, or a unit in the header such as '{key} [mm]')",
+                where,
+            )
         chosen = chosen.lower()
         if chosen not in allowed[kind]:
             raise source.error(
                 f"{kind} unit {chosen!r} of {label!r} is not supported; use one of "
-                f"{', '.join(allowed[kind])}", where)
+                f"{', '.join(allowed[kind])}",
+                where,
+            )
         if kind in units and units[kind] != chosen:
-            raise source.error(f"the {kind} columns disagree on their unit ({units[kind]!r} "
-                               f"and {chosen!r})", where)
+            raise source.error(
+                f"the {kind} columns disagree on their unit ({units[kind]!r} and {chosen!r})", where
+            )
         units[kind] = chosen
-        origin = fmt.unit_notes.get(kind) or ("declared" if unit is not None else
-                                               f"header {label!r}")
+        origin = fmt.unit_notes.get(kind) or (
+            "declared" if unit is not None else f"header {label!r}"
+        )
         notes[kind] = origin
     return units, notes
 
@@ -336,11 +400,16 @@ def _rows(
         if expected is None:
             expected, expected_from = len(tokens), number
         if len(tokens) != expected:
-            what = f"the header (line {expected_from})" if layout.header else \
-                f"the first data row (line {expected_from})"
+            what = (
+                f"the header (line {expected_from})"
+                if layout.header
+                else f"the first data row (line {expected_from})"
+            )
             raise source.error(
                 f"{len(tokens)} fields where {what} has {expected}: the file is cut short or "
-                "a value is missing or split; check this line", number)
+                "a value is missing or split; check this line",
+                number,
+            )
         for key, index in columns.items():
             token = tokens[index].replace(",", ".") if decimal_comma else tokens[index]
             label = layout.header[index] if layout.header else f"column {index + 1}"
@@ -381,7 +450,9 @@ def _assemble(
         raise source.error(
             f"the {axis} deviation is {value:.6g} mm (more than {fmt.max_deviation_mm:g} mm): "
             "a column is wrong (commanded and measured swapped with another column?) or the "
-            "unit is; check the column map", lines[int(worst)])
+            "unit is; check the column map",
+            lines[int(worst)],
+        )
     environment: dict[str, np.ndarray] = {}
     for key in ("air_temp", "material_temp", "pressure", "humidity"):
         if key not in values:
@@ -398,13 +469,18 @@ def _assemble(
             raise source.error(
                 f"{key.replace('_', ' ')} {values[key][row]:g} ({raw[row]:.4g} {symbol}) is "
                 f"not plausible (expected {low:g} to {high:g} {symbol}): check the column map "
-                "and the unit", lines[row])
+                "and the unit",
+                lines[row],
+            )
         environment[key] = raw
-    unit_text: dict[str, str] = {kind: f"{_SYMBOL.get(units[kind], units[kind])} ({notes[kind]})"
-                 for kind in ("position", "deviation", "temperature", "pressure")
-                 if kind in units}
+    unit_text: dict[str, str] = {
+        kind: f"{_SYMBOL.get(units[kind], units[kind])} ({notes[kind]})"
+        for kind in ("position", "deviation", "temperature", "pressure")
+        if kind in units
+    }
     unit_text["sign"] = "deviation = measured - commanded" + (
-        " (the file's values negated)" if fmt.sign < 0 else "")
+        " (the file's values negated)" if fmt.sign < 0 else ""
+    )
     return GridMeasurement(
         name=name or source.path.stem,
         position_mm=position,
@@ -430,8 +506,11 @@ def check_grid(
     try:
         lattice = common_lattice([grid], tolerance_mm)
     except GridLayoutError as exc:
-        line = (int(grid.file_lines[exc.index]) if exc.index is not None and
-                grid.file_lines is not None else grid_first_line(grid))
+        line = (
+            int(grid.file_lines[exc.index])
+            if exc.index is not None and grid.file_lines is not None
+            else grid_first_line(grid)
+        )
         raise source.error(exc.reason, line) from None
     if complete:
         missing = missing_nodes(grid, lattice)
@@ -441,7 +520,8 @@ def check_grid(
             raise source.error(
                 f"no reading at X = {x:g} mm, Y = {y:g} mm{more}: the file is cut short or "
                 "rows are missing (a grid with gaps can be read with complete = False)",
-                int(grid.file_lines[-1]) if grid.file_lines is not None else source.last_line)
+                int(grid.file_lines[-1]) if grid.file_lines is not None else source.last_line,
+            )
 
 
 def grid_first_line(grid: GridMeasurement) -> int | None:

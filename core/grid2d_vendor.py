@@ -59,8 +59,10 @@ def vendor_correction(grid: GridMeasurement, scan_axis: str | None = None) -> Ve
         raise UserError(f"scan axis must be X or Y, got {scan!r}")
     lattice = common_lattice([grid])
     if missing_nodes(grid, lattice) or grid.measured_directions != GRID_AXES:
-        raise UserError(f"{grid.source_file or grid.name}: the vendor method needs a reading "
-                        "in X and Y at every node")
+        raise UserError(
+            f"{grid.source_file or grid.name}: the vendor method needs a reading "
+            "in X and Y at every node"
+        )
     ix, iy = lattice.index(grid.position_mm)
     ny, nx = lattice.shape
     error = np.zeros((2, ny, nx))

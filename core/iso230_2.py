@@ -77,14 +77,31 @@ class Iso230Result:
         plus the per-target means and spreads; NaN becomes None."""
         u = self.unit
         out: dict[str, object] = {"unit": u, "runs_up": self.runs_up, "runs_down": self.runs_down}
-        for key in ("A", "E", "R", "B", "M", "A_up", "A_down", "E_up", "E_down", "R_up",
-                    "R_down", "mean_reversal"):
+        for key in (
+            "A",
+            "E",
+            "R",
+            "B",
+            "M",
+            "A_up",
+            "A_down",
+            "E_up",
+            "E_down",
+            "R_up",
+            "R_down",
+            "mean_reversal",
+        ):
             out[f"{key}_{u}"] = _number(getattr(self, f"{key}_um"))
         out["targets_mm"] = _numbers(self.targets_mm)
         for key, values in (
-            ("mean_up", self.mean_up), ("mean_down", self.mean_down), ("mean", self.mean),
-            ("s_up", self.s_up), ("s_down", self.s_down), ("reversal", self.reversal),
-            ("repeatability", self.repeatability), ("repeatability_up", self.repeatability_up),
+            ("mean_up", self.mean_up),
+            ("mean_down", self.mean_down),
+            ("mean", self.mean),
+            ("s_up", self.s_up),
+            ("s_down", self.s_down),
+            ("reversal", self.reversal),
+            ("repeatability", self.repeatability),
+            ("repeatability_up", self.repeatability_up),
             ("repeatability_down", self.repeatability_down),
         ):
             out[f"{key}_{u}"] = _numbers(values)
@@ -251,8 +268,9 @@ def minimum_zone(targets_mm: ArrayLike, deviation: ArrayLike) -> tuple[float, fl
     x, y = _profile(targets_mm, deviation)
     centre = float(np.mean(x))
     xc = x - centre
-    candidates = np.unique(np.concatenate([_hull_slopes(xc, y, upper=True),
-                                           _hull_slopes(xc, y, upper=False)]))
+    candidates = np.unique(
+        np.concatenate([_hull_slopes(xc, y, upper=True), _hull_slopes(xc, y, upper=False)])
+    )
 
     def width(m: float) -> float:
         r = y - m * xc

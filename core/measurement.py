@@ -86,8 +86,10 @@ class LineSpec:
             object.__setattr__(self, "sensitive", sensitive)
         expected = "urad" if self.quantity == "angular" else "um"
         if self.deviation_unit not in DEVIATION_FACTOR:
-            raise PlanError(f"{where}: deviation_unit {self.deviation_unit!r} is not supported; "
-                            f"use one of {', '.join(DEVIATION_FACTOR)}")
+            raise PlanError(
+                f"{where}: deviation_unit {self.deviation_unit!r} is not supported; "
+                f"use one of {', '.join(DEVIATION_FACTOR)}"
+            )
         if (self.deviation_unit in ANGLE_UNITS) != (expected == "urad"):
             raise PlanError(
                 f"{where}: deviation_unit {self.deviation_unit!r} does not fit a "

@@ -110,27 +110,40 @@ def screen(
         screened = int(np.sum(finite[run]))
         if hits.size >= 2 and 2 * hits.size >= screened:
             offset = float(np.nanmedian(residual[run]))
-            flags.append(OutlierFlag(
-                line, run + 1, None, None, offset,
-                f"run {run + 1} ({sense}) lies outside the run-to-run spread at {hits.size} "
-                f"of {screened} targets: median offset {offset:+.3f} {symbol}, "
-                f"{abs(offset) / sigma:.1f} σ (σ = {sigma:.3f} {symbol})",
-                float(np.nanmedian(score[run])),
-            ))
+            flags.append(
+                OutlierFlag(
+                    line,
+                    run + 1,
+                    None,
+                    None,
+                    offset,
+                    f"run {run + 1} ({sense}) lies outside the run-to-run spread at {hits.size} "
+                    f"of {screened} targets: median offset {offset:+.3f} {symbol}, "
+                    f"{abs(offset) / sigma:.1f} σ (σ = {sigma:.3f} {symbol})",
+                    float(np.nanmedian(score[run])),
+                )
+            )
             continue
-        against = (f"the smooth trend over time of the other {sense} runs"
-                   if data.run_direction[run] in trended else
-                   f"the median of the other {sense} runs")
+        against = (
+            f"the smooth trend over time of the other {sense} runs"
+            if data.run_direction[run] in trended
+            else f"the median of the other {sense} runs"
+        )
         for target in hits:
             r = float(residual[run, target])
-            flags.append(OutlierFlag(
-                line, run + 1, int(target) + 1, float(data.targets_mm[target]),
-                float(x[run, target]),
-                f"reading at {data.targets_mm[target]:g} mm, run {run + 1} ({sense}) is "
-                f"{r:+.3f} {symbol} from {against}: "
-                f"{abs(r) / sigma:.1f} σ of the run-to-run spread (σ = {sigma:.3f} {symbol})",
-                float(score[run, target]),
-            ))
+            flags.append(
+                OutlierFlag(
+                    line,
+                    run + 1,
+                    int(target) + 1,
+                    float(data.targets_mm[target]),
+                    float(x[run, target]),
+                    f"reading at {data.targets_mm[target]:g} mm, run {run + 1} ({sense}) is "
+                    f"{r:+.3f} {symbol} from {against}: "
+                    f"{abs(r) / sigma:.1f} σ of the run-to-run spread (σ = {sigma:.3f} {symbol})",
+                    float(score[run, target]),
+                )
+            )
     return flags
 
 
@@ -154,8 +167,13 @@ def _run_times(data: LineData, rows: np.ndarray) -> np.ndarray:
     return times
 
 
-def trend_residual(time_s: np.ndarray, values: np.ndarray, min_sigma: float = 0.05,
-                   threshold: float = 5.0, half_window: int = TREND_HALF_WINDOW) -> np.ndarray:
+def trend_residual(
+    time_s: np.ndarray,
+    values: np.ndarray,
+    min_sigma: float = 0.05,
+    threshold: float = 5.0,
+    half_window: int = TREND_HALF_WINDOW,
+) -> np.ndarray:
     """Each value's standardised distance from its leave-one-out local trend, in the values'
     unit (module notes); NaN where a value is missing or has too few neighbours. Values need
     not be in time order.
@@ -189,8 +207,9 @@ def trend_residual(time_s: np.ndarray, values: np.ndarray, min_sigma: float = 0.
     return out
 
 
-def _local_trend_residual(t: np.ndarray, x: np.ndarray, w: np.ndarray,
-                          half_window: int) -> np.ndarray:
+def _local_trend_residual(
+    t: np.ndarray, x: np.ndarray, w: np.ndarray, half_window: int
+) -> np.ndarray:
     """(x_i − q_i(t_i)) / √(1 + h_i): q_i the weighted least-squares quadratic through the
     neighbours j ≠ i, |i − j| ≤ half_window, h_i its leverage at t_i (vectorised over i: one
     pass per offset, then one batched 3 × 3 solve)."""
@@ -209,7 +228,7 @@ def _local_trend_residual(t: np.ndarray, x: np.ndarray, w: np.ndarray,
         powers = w[j][:, None] * dt[:, None] ** np.arange(5)
         moments[i] += powers
         rhs[i] += powers[:, :3] * x[j][:, None]
-    normal = np.stack([moments[:, k:k + 3] for k in range(3)], axis=1)
+    normal = np.stack([moments[:, k : k + 3] for k in range(3)], axis=1)
     usable = moments[:, 0] >= 5
     normal[~usable] = np.eye(3)
     scale = np.sqrt(np.abs(np.diagonal(normal, axis1=1, axis2=2)))  # equilibrate, then solve
@@ -268,11 +287,16 @@ def screen_series(
     flags = []
     for k in np.flatnonzero(finite & (np.abs(residual) > threshold * sigma)):
         r = float(residual[k])
-        flags.append(SeriesFlag(
-            name, int(k) + 1, float(time[k]), float(x[k]),
-            f"{name or 'value'} at sample {k + 1} ({time[k]:g} s) is {r:+.3f} {symbol} from the "
-            f"smooth trend of its neighbours: {abs(r) / sigma:.1f} σ of the scatter about the "
-            f"trend (σ = {sigma:.3f} {symbol})",
-            abs(r) / sigma,
-        ))
+        flags.append(
+            SeriesFlag(
+                name,
+                int(k) + 1,
+                float(time[k]),
+                float(x[k]),
+                f"{name or 'value'} at sample {k + 1} ({time[k]:g} s) is {r:+.3f} {symbol} from the "
+                f"smooth trend of its neighbours: {abs(r) / sigma:.1f} σ of the scatter about the "
+                f"trend (σ = {sigma:.3f} {symbol})",
+                abs(r) / sigma,
+            )
+        )
     return flags

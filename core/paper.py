@@ -58,26 +58,74 @@ TABLE2: tuple[tuple[str, str, float, float], ...] = (
 
 #: Fig. 3, first-order indices, the six largest per output as quoted in the paper's text.
 FIG3_S1: Mapping[str, tuple[tuple[str, float], ...]] = {
-    "Ex": (("δx(x)", 0.30), ("δx(z)", 0.23), ("δx(y)", 0.14), ("εx(x)", 0.05), ("εy(x)", 0.04),
-           ("Sxz", 0.03)),
-    "Ey": (("δy(y)", 0.32), ("δx(z)", 0.28), ("δy(z)", 0.18), ("δz(x)", 0.07), ("εx(y)", 0.03),
-           ("εy(x)", 0.02)),
-    "Ez": (("δz(z)", 0.39), ("δz(x)", 0.28), ("δz(y)", 0.05), ("εx(x)", 0.04), ("δy(x)", 0.03),
-           ("δx(z)", 0.02)),
-    "ET": (("δz(z)", 0.24), ("δx(x)", 0.23), ("δx(z)", 0.20), ("δy(y)", 0.13), ("δz(x)", 0.07),
-           ("δy(z)", 0.03)),
+    "Ex": (
+        ("δx(x)", 0.30),
+        ("δx(z)", 0.23),
+        ("δx(y)", 0.14),
+        ("εx(x)", 0.05),
+        ("εy(x)", 0.04),
+        ("Sxz", 0.03),
+    ),
+    "Ey": (
+        ("δy(y)", 0.32),
+        ("δx(z)", 0.28),
+        ("δy(z)", 0.18),
+        ("δz(x)", 0.07),
+        ("εx(y)", 0.03),
+        ("εy(x)", 0.02),
+    ),
+    "Ez": (
+        ("δz(z)", 0.39),
+        ("δz(x)", 0.28),
+        ("δz(y)", 0.05),
+        ("εx(x)", 0.04),
+        ("δy(x)", 0.03),
+        ("δx(z)", 0.02),
+    ),
+    "ET": (
+        ("δz(z)", 0.24),
+        ("δx(x)", 0.23),
+        ("δx(z)", 0.20),
+        ("δy(y)", 0.13),
+        ("δz(x)", 0.07),
+        ("δy(z)", 0.03),
+    ),
 }
 
 #: Fig. 4, "global" (total) indices, the six largest per output as quoted in the paper's text.
 FIG4_ST: Mapping[str, tuple[tuple[str, float], ...]] = {
-    "Ex": (("δx(x)", 0.17), ("δz(x)", 0.16), ("εz(x)", 0.09), ("δx(z)", 0.08), ("δx(y)", 0.06),
-           ("Sxy", 0.04)),
-    "Ey": (("δy(y)", 0.19), ("εx(z)", 0.17), ("δx(z)", 0.12), ("δy(z)", 0.11), ("εx(y)", 0.04),
-           ("δx(x)", 0.03)),
-    "Ez": (("δz(z)", 0.19), ("δz(x)", 0.09), ("εz(y)", 0.06), ("Sxy", 0.05), ("εz(z)", 0.05),
-           ("εx(z)", 0.04)),
-    "ET": (("δx(x)", 0.14), ("δz(z)", 0.10), ("δy(y)", 0.08), ("δz(y)", 0.07), ("δx(z)", 0.06),
-           ("εz(z)", 0.06)),
+    "Ex": (
+        ("δx(x)", 0.17),
+        ("δz(x)", 0.16),
+        ("εz(x)", 0.09),
+        ("δx(z)", 0.08),
+        ("δx(y)", 0.06),
+        ("Sxy", 0.04),
+    ),
+    "Ey": (
+        ("δy(y)", 0.19),
+        ("εx(z)", 0.17),
+        ("δx(z)", 0.12),
+        ("δy(z)", 0.11),
+        ("εx(y)", 0.04),
+        ("δx(x)", 0.03),
+    ),
+    "Ez": (
+        ("δz(z)", 0.19),
+        ("δz(x)", 0.09),
+        ("εz(y)", 0.06),
+        ("Sxy", 0.05),
+        ("εz(z)", 0.05),
+        ("εx(z)", 0.04),
+    ),
+    "ET": (
+        ("δx(x)", 0.14),
+        ("δz(z)", 0.10),
+        ("δy(y)", 0.08),
+        ("δz(y)", 0.07),
+        ("δx(z)", 0.06),
+        ("εz(z)", 0.06),
+    ),
 }
 
 #: Table 3 as printed: symbol -> (unit, standard deviation of the compensation value).
@@ -185,12 +233,15 @@ class PaperComparison:
         }
 
     def format_text(self) -> str:
-        lines = ["volucal paper: the paper's Table 2 inputs through volucal's EFAST,",
-                 "beside the paper's Figs. 3 and 4 and Table 3", "", "Assumptions"]
+        lines = [
+            "volucal paper: the paper's Table 2 inputs through volucal's EFAST,",
+            "beside the paper's Figs. 3 and 4 and Table 3",
+            "",
+            "Assumptions",
+        ]
         for key, value in self.assumptions.items():
             lines.append(f"  {key}: {value}")
-        header = (f"  {'error':<14}{'ours: map':>16}{'ours: design':>14}{'noise':>8}"
-                  f"{'paper':>8}")
+        header = f"  {'error':<14}{'ours: map':>16}{'ours: design':>14}{'noise':>8}{'paper':>8}"
         for kind, table, figure in (("S1", self.s1, "Fig. 3"), ("ST", self.st, "Fig. 4")):
             for output, rows in table.items():
                 lines += ["", f"{output}: {kind} (paper: {figure})", header]
@@ -202,13 +253,19 @@ class PaperComparison:
                         f"  {r.id + ' ' + r.symbol:<14}{mapped:>16}{_shown(r.design):>14}"
                         f"{_shown(r.noise):>8}{paper:>8}"
                     )
-        lines += ["", f"Table 3 (eq. 19, T = {TOLERANCE_UM:g} µm, from the ET first-order indices)",
-                  f"  {'error':<14}{'paper':>11}{'implied S1':>11}{'eq.19 Fig.3':>12}"
-                  f"{'our S1':>8}{'eq.19 ours':>11}{'sound form':>18}"]
+        lines += [
+            "",
+            f"Table 3 (eq. 19, T = {TOLERANCE_UM:g} µm, from the ET first-order indices)",
+            f"  {'error':<14}{'paper':>11}{'implied S1':>11}{'eq.19 Fig.3':>12}"
+            f"{'our S1':>8}{'eq.19 ours':>11}{'sound form':>18}",
+        ]
         for t in self.table3:
             fig3 = "" if t.from_paper_fig3 is None else f"{t.from_paper_fig3:.3f}"
-            sound = (f"{t.ours_allowed:.3g} {t.allowed_unit}" if math.isfinite(t.ours_allowed)
-                     else "not bound")
+            sound = (
+                f"{t.ours_allowed:.3g} {t.allowed_unit}"
+                if math.isfinite(t.ours_allowed)
+                else "not bound"
+            )
             lines.append(
                 f"  {t.id + ' ' + t.symbol:<14}{t.paper:>11.4g}{t.implied_s1:>11.3g}{fig3:>12}"
                 f"{t.ours_s1:>8.3f}{t.ours_published:>11.3f}{sound:>18}"
@@ -225,8 +282,7 @@ def _shown(value: float) -> str:
 
 def _finite_dict(values: Mapping[str, object]) -> dict[str, object]:
     return {
-        k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-        for k, v in values.items()
+        k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in values.items()
     }
 
 
@@ -278,8 +334,9 @@ def paper_comparison(
     report(progress, 0.8, "paper: positions as noise")
     noise = noise_positions_indices(n, m, seed, map_problem.tool_offset_mm)
 
-    def table(kind: str, figure: Mapping[str, tuple[tuple[str, float], ...]]
-              ) -> dict[str, tuple[IndexRow, ...]]:
+    def table(
+        kind: str, figure: Mapping[str, tuple[tuple[str, float], ...]]
+    ) -> dict[str, tuple[IndexRow, ...]]:
         out = {}
         for output in OUTPUT_ORDER:
             ws = mapped.workspace(output)
@@ -292,8 +349,15 @@ def paper_comparison(
             chosen += [i for i in paper if i not in chosen]
             chosen.sort(key=lambda i: -ours[i])
             out[output] = tuple(
-                IndexRow(i, _symbol(i), float(ours[i]), float(ours_std[i]), float(designed[i]),
-                         float(noisy[i]), paper.get(i))
+                IndexRow(
+                    i,
+                    _symbol(i),
+                    float(ours[i]),
+                    float(ours_std[i]),
+                    float(designed[i]),
+                    float(noisy[i]),
+                    paper.get(i),
+                )
                 for i in chosen
             )
         return out
@@ -304,12 +368,20 @@ def paper_comparison(
     for symbol, (unit, value) in TABLE3.items():
         eid = SYMBOL_TO_ID[symbol]
         paper_s = fig3_et.get(eid)
-        table3.append(Table3Row(
-            eid, _symbol(eid), unit, value, 6.0 * value * value / TOLERANCE_UM,
-            None if paper_s is None else math.sqrt(paper_s * TOLERANCE_UM / 6.0),
-            allocation.s1[eid], allocation.published[eid], allocation.allowed[eid],
-            allocation.units[eid],
-        ))
+        table3.append(
+            Table3Row(
+                eid,
+                _symbol(eid),
+                unit,
+                value,
+                6.0 * value * value / TOLERANCE_UM,
+                None if paper_s is None else math.sqrt(paper_s * TOLERANCE_UM / 6.0),
+                allocation.s1[eid],
+                allocation.published[eid],
+                allocation.allowed[eid],
+                allocation.units[eid],
+            )
+        )
     table3.sort(key=lambda r: ERROR_IDS.index(r.id))
     s1_rows = table("S1", FIG3_S1)
     st_rows = table("ST", FIG4_ST)
@@ -321,17 +393,17 @@ def paper_comparison(
         + ", ".join(f"{a} {lo:g}..{hi:g} mm" for a, (lo, hi) in PAPER_MACHINE.stroke_mm.items()),
         "tool offset": "D1, D2, D3 = " + ", ".join(f"{v:g}" for v in (tool or ())) + " mm",
         "errors": "Table 2, all normal; angles 1e-4 rad = 100 µrad; EB0Z = −Sxz; evaluated "
-                  "with the exact chain (eq. 4), each error one random scalar",
+        "with the exact chain (eq. 4), each error one random scalar",
         "EFAST": f"N = {n} per factor (21 factors, 24 with positions), M = {m}, method "
-                 f"{mapped.settings['method']}, {repeats} repeats with independent random "
-                 f"phases (seed {seed}); ± is the spread of one repeat",
+        f"{mapped.settings['method']}, {repeats} repeats with independent random "
+        f"phases (seed {seed}); ± is the spread of one repeat",
         "map": f"positions fixed on a {_grid_text(grid)} grid over the strokes (step about "
-               f"{grid_step_mm:g} mm), one analysis per point; indices of the workspace-averaged "
-               "variance, Σ V_p·S_p / Σ V_p",
+        f"{grid_step_mm:g} mm), one analysis per point; indices of the workspace-averaged "
+        "variance, Σ V_p·S_p / Σ V_p",
         "design": "X, Y, Z as design factors uniform over the strokes (their own indices are in "
-                  "--json under design_positions)",
+        "--json under design_positions)",
         "noise": "positions drawn for every run outside the design (volucal refuses this; "
-                 "shown to explain the paper), classic estimator",
+        "shown to explain the paper), classic estimator",
         "paper figures": "Figs. 3 and 4 as quoted in the paper's text (top six per output)",
     }
     positions = {
@@ -341,9 +413,7 @@ def paper_comparison(
         }
         for output in OUTPUT_ORDER
     }
-    return PaperComparison(
-        assumptions, s1_rows, st_rows, tuple(table3), tuple(findings), positions
-    )
+    return PaperComparison(assumptions, s1_rows, st_rows, tuple(table3), tuple(findings), positions)
 
 
 def _grid_text(grid: FloatArray) -> str:

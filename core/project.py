@@ -140,13 +140,19 @@ def _read_group(group: h5py.Group) -> Group:
 
 def _no_nul(value: Any, where: str) -> None:
     """HDF5 strings end at a NUL: refuse one rather than store a truncated value."""
-    texts = [value] if isinstance(value, str) else (
-        value.ravel().tolist() if isinstance(value, np.ndarray) and value.dtype.kind in "OU"
-        else []
+    texts = (
+        [value]
+        if isinstance(value, str)
+        else (
+            value.ravel().tolist()
+            if isinstance(value, np.ndarray) and value.dtype.kind in "OU"
+            else []
+        )
     )
     if any(isinstance(t, str) and "\0" in t for t in texts):
-        raise UserError(f"{where}: a text holds a NUL character, which HDF5 cannot store; "
-                        "remove it")
+        raise UserError(
+            f"{where}: a text holds a NUL character, which HDF5 cannot store; remove it"
+        )
 
 
 def _write_group(target: h5py.Group, group: Group) -> None:
@@ -161,8 +167,7 @@ def _write_group(target: h5py.Group, group: Group) -> None:
         value = child.value
         _no_nul(value, f"{target.name}/{name}")
         if value.dtype.kind in "OUS":
-            data = target.create_dataset(name, data=value.astype(object),
-                                         dtype=h5py.string_dtype())
+            data = target.create_dataset(name, data=value.astype(object), dtype=h5py.string_dtype())
         else:
             # Fletcher-32 checksums make damaged values an error instead of silent garbage
             checked = value.ndim > 0 and value.size > 0
@@ -192,10 +197,18 @@ def tree_to_group(tree: Mapping[str, Any]) -> Group:
     cannot store and ValueError for keys HDF5 cannot name."""
     group = Group({f"{_RESERVED}type": "dict"})
     for key, value in tree.items():
-        if not isinstance(key, str) or not key or "/" in key or key.startswith(".") or \
-                key.startswith(_RESERVED) or not key.isprintable():
-            raise ValueError(f"result key {key!r}: use a non-empty printable string without "
-                             f"'/', not starting with '.' or {_RESERVED!r}")
+        if (
+            not isinstance(key, str)
+            or not key
+            or "/" in key
+            or key.startswith(".")
+            or key.startswith(_RESERVED)
+            or not key.isprintable()
+        ):
+            raise ValueError(
+                f"result key {key!r}: use a non-empty printable string without "
+                f"'/', not starting with '.' or {_RESERVED!r}"
+            )
         _store(group, key, value)
     return group
 
@@ -220,12 +233,19 @@ def _store(group: Group, key: str, value: Any) -> None:
         return
     if isinstance(value, list | tuple):
         items = list(value)
-        numbers = items and all(isinstance(v, bool | int | float | np.number | np.bool_)
-                                for v in items)
+        numbers = items and all(
+            isinstance(v, bool | int | float | np.number | np.bool_) for v in items
+        )
         texts = items and all(isinstance(v, str) for v in items)
         if numbers or texts:
-            kinds = {"bool" if isinstance(v, bool | np.bool_) else
-                     "int" if isinstance(v, int | np.integer) else "float" for v in items}
+            kinds = {
+                "bool"
+                if isinstance(v, bool | np.bool_)
+                else "int"
+                if isinstance(v, int | np.integer)
+                else "float"
+                for v in items
+            }
             element = "str" if texts else kinds.pop() if len(kinds) == 1 else "float"
             dtype = {"bool": bool, "int": np.int64, "float": float, "str": object}[element]
             attrs = {f"{_RESERVED}type": "list", f"{_RESERVED}element": element}
@@ -244,9 +264,7 @@ def _store(group: Group, key: str, value: Any) -> None:
 def group_to_tree(group: Group) -> Any:
     """Inverse of :func:`tree_to_group`."""
     kind = group.attrs.get(f"{_RESERVED}type", "dict")
-    entries: dict[str, Any] = {
-        k: v for k, v in group.attrs.items() if not k.startswith(_RESERVED)
-    }
+    entries: dict[str, Any] = {k: v for k, v in group.attrs.items() if not k.startswith(_RESERVED)}
     for name, child in group.children.items():
         entries[name] = group_to_tree(child) if isinstance(child, Group) else _dataset_value(child)
     if kind == "list":
@@ -407,8 +425,9 @@ class Project:
         if self.machine is None:
             raise UserError("the project has no machine yet: import a plan first")
         path = Path(self.plan_path) if self.plan_path else None
-        return Plan(self.machine, tuple(s.spec for s in self.lines.values()), path,
-                    dict(self.uncertainty))
+        return Plan(
+            self.machine, tuple(s.spec for s in self.lines.values()), path, dict(self.uncertainty)
+        )
 
     def _line(self, name: str) -> StoredLine:
         if name not in self.lines:
@@ -433,10 +452,17 @@ class Project:
     def _check_result(kind: str, name: str) -> None:
         if kind not in RESULT_KINDS:
             raise ValueError(f"result kind {kind!r} is not one of {', '.join(RESULT_KINDS)}")
-        if not isinstance(name, str) or not name or "/" in name or name.startswith(".") or \
-                not name.isprintable():
-            raise ValueError(f"result name {name!r}: use a non-empty printable name without "
-                             "'/', not starting with '.'")
+        if (
+            not isinstance(name, str)
+            or not name
+            or "/" in name
+            or name.startswith(".")
+            or not name.isprintable()
+        ):
+            raise ValueError(
+                f"result name {name!r}: use a non-empty printable name without "
+                "'/', not starting with '.'"
+            )
 
     def put_result(self, kind: str, name: str, tree: Mapping[str, Any]) -> None:
         """Store a result tree (replacing one of the same kind and name)."""
@@ -504,8 +530,10 @@ class Project:
         except UserError:
             raise
         except Exception as exc:  # h5py reports damage as OSError, KeyError, RuntimeError…
-            raise UserError(f"{path}: the project file is damaged ({exc}); restore a backup or "
-                            "import the plan again") from None
+            raise UserError(
+                f"{path}: the project file is damaged ({exc}); restore a backup or "
+                "import the plan again"
+            ) from None
 
     def save(self, path: str | Path | None = None) -> Path:
         """Write the project atomically (module notes) under a :class:`ProjectLock`.
@@ -539,8 +567,10 @@ class Project:
                 _fsync_path(target.parent if str(target.parent) else Path("."))
             except OSError as exc:
                 temporary.unlink(missing_ok=True)
-                raise UserError(f"{target}: cannot save the project ({exc.strerror or exc}); "
-                                "check that its folder is writable and has room") from None
+                raise UserError(
+                    f"{target}: cannot save the project ({exc.strerror or exc}); "
+                    "check that its folder is writable and has room"
+                ) from None
             except BaseException:
                 temporary.unlink(missing_ok=True)
                 raise
@@ -566,16 +596,19 @@ class Project:
     # ---- documents -----------------------------------------------------------------------
 
     def _to_document(self) -> Group:
-        root = Group({
-            "format_version": FORMAT_VERSION,
-            "creator": self.creator,
-            "created": self.created,
-            "modified": self.modified,
-        })
+        root = Group(
+            {
+                "format_version": FORMAT_VERSION,
+                "creator": self.creator,
+                "created": self.created,
+                "modified": self.modified,
+            }
+        )
         if self.machine is not None:
             root.children["machine"] = _machine_group(self.machine)
-        plan = Group({"path": self.plan_path or "", "uncertainty_json": json.dumps(
-            self.uncertainty)})
+        plan = Group(
+            {"path": self.plan_path or "", "uncertainty_json": json.dumps(self.uncertainty)}
+        )
         if self.plan_toml is not None:
             plan.children["toml"] = Dataset(np.array(self.plan_toml, dtype=object))
         root.children["plan"] = plan
@@ -591,16 +624,18 @@ class Project:
 
     @classmethod
     def _from_document(cls, root: Group) -> Project:
-        project = cls(_machine_from(root.children["machine"]) if "machine" in root.children
-                      else None)
+        project = cls(
+            _machine_from(root.children["machine"]) if "machine" in root.children else None
+        )
         project.created = str(root.attrs.get("created", ""))
         project.modified = str(root.attrs.get("modified", ""))
         project.creator = str(root.attrs.get("creator", ""))
         plan = root.children["plan"]
         assert isinstance(plan, Group)
         project.plan_path = str(plan.attrs.get("path", "")) or None
-        project.uncertainty = {k: float(v) for k, v in
-                               json.loads(plan.attrs.get("uncertainty_json", "{}")).items()}
+        project.uncertainty = {
+            k: float(v) for k, v in json.loads(plan.attrs.get("uncertainty_json", "{}")).items()
+        }
         if "toml" in plan.children:
             toml = plan.children["toml"]
             assert isinstance(toml, Dataset)
@@ -628,8 +663,10 @@ def _check_line_name(name: object) -> str:
     """A line name names an HDF5 group: printable, no '/', not starting with '.'."""
     text = check_name(name, "line name")
     if "/" in text or text.startswith("."):
-        raise UserError(f"line name {text!r}: a name cannot contain '/' or start with '.' (it "
-                        "names a group in the project file)")
+        raise UserError(
+            f"line name {text!r}: a name cannot contain '/' or start with '.' (it "
+            "names a group in the project file)"
+        )
     return text
 
 
@@ -641,8 +678,9 @@ def _format_version(handle: h5py.File, path: Path) -> int:
     version = handle.attrs.get("format_version")
     creator = handle.attrs.get("creator")
     if version is None or creator is None:
-        raise UserError(f"{path}: an HDF5 file but not a volucal project (no "
-                        "format_version/creator stamp)")
+        raise UserError(
+            f"{path}: an HDF5 file but not a volucal project (no format_version/creator stamp)"
+        )
     value = _attr_value(version)
     whole = isinstance(value, int) and not isinstance(value, bool)
     if isinstance(value, float) and value.is_integer():
@@ -707,15 +745,17 @@ def _fsync_path(path: Path) -> None:
 
 
 def _machine_group(machine: Machine) -> Group:
-    return Group({
-        "name": machine.name,
-        "chain": machine.chain,
-        "axes": "".join(AXES),
-        "stroke_mm": np.array([machine.stroke(a) for a in AXES], dtype=float),
-        "tool_offset_mm": np.array(machine.tool_offset_mm, dtype=float),
-        "reference_mm": np.array(machine.reference_mm, dtype=float),
-        "screw_lead_json": json.dumps(dict(machine.screw_lead_mm)),
-    })
+    return Group(
+        {
+            "name": machine.name,
+            "chain": machine.chain,
+            "axes": "".join(AXES),
+            "stroke_mm": np.array([machine.stroke(a) for a in AXES], dtype=float),
+            "tool_offset_mm": np.array(machine.tool_offset_mm, dtype=float),
+            "reference_mm": np.array(machine.reference_mm, dtype=float),
+            "screw_lead_json": json.dumps(dict(machine.screw_lead_mm)),
+        }
+    )
 
 
 def _machine_from(group: Group | Dataset) -> Machine:
@@ -724,8 +764,10 @@ def _machine_from(group: Group | Dataset) -> Machine:
     return Machine(
         name=str(a["name"]),
         chain=str(a["chain"]),
-        stroke_mm={axis: (float(stroke[i, 0]), float(stroke[i, 1]))
-                   for i, axis in enumerate(str(a["axes"]))},
+        stroke_mm={
+            axis: (float(stroke[i, 0]), float(stroke[i, 1]))
+            for i, axis in enumerate(str(a["axes"]))
+        },
         screw_lead_mm=json.loads(a["screw_lead_json"]),
         tool_offset_mm=tuple(float(v) for v in a["tool_offset_mm"]),  # type: ignore[arg-type]
         reference_mm=tuple(float(v) for v in a["reference_mm"]),  # type: ignore[arg-type]
@@ -734,8 +776,11 @@ def _machine_from(group: Group | Dataset) -> Machine:
 
 def _data_group(data: LineData, unit: str) -> Group:
     env = data.environment
-    attrs: dict[str, Any] = {"start_time": float(data.start_time), "unit": unit,
-                             "metadata_json": json.dumps(dict(data.metadata))}
+    attrs: dict[str, Any] = {
+        "start_time": float(data.start_time),
+        "unit": unit,
+        "metadata_json": json.dumps(dict(data.metadata)),
+    }
     for key in ("air_temp_c", "air_pressure_kpa", "air_humidity_pct"):
         value = getattr(env, key)
         if value is not None:
@@ -772,7 +817,8 @@ def _data_from(group: Group | Dataset) -> LineData:
         air_pressure_kpa=pair("air_pressure_kpa"),
         air_humidity_pct=pair("air_humidity_pct"),
         material_temp_c=tuple((float(s), float(e)) for s, e in np.asarray(material))
-        if material is not None else (),
+        if material is not None
+        else (),
         expansion_ppm_per_c=a.get("environment_expansion_ppm_per_c"),
     )
 
@@ -816,19 +862,36 @@ def _line_group(line: StoredLine) -> Group:
     children: dict[str, Group | Dataset] = {
         "raw": _data_group(line.raw, line.raw_unit),
         "corrected": _data_group(line.corrected, spec.unit),
-        "source": Dataset(source, {"filename": str(line.provenance.get("source_file", "")),
-                                   "sha256": hashlib.sha256(line.source_bytes).hexdigest()}),
+        "source": Dataset(
+            source,
+            {
+                "filename": str(line.provenance.get("source_file", "")),
+                "sha256": hashlib.sha256(line.source_bytes).hexdigest(),
+            },
+        ),
     }
     if line.capture is not None:
-        children["capture"] = Group(children={
-            k: Dataset(np.asarray(v), {"unit": _unit_of(k) or line.raw_unit})
-            for k, v in line.capture.items()
-        })
+        children["capture"] = Group(
+            children={
+                k: Dataset(np.asarray(v), {"unit": _unit_of(k) or line.raw_unit})
+                for k, v in line.capture.items()
+            }
+        )
     return Group(attrs, children)
 
 
-_SPEC_ATTRS = {"quantity", "start_mm", "direction", "reflector_mm", "file", "deviation_unit",
-               "sign", "env_corrected", "reader_json", "sensitive"}
+_SPEC_ATTRS = {
+    "quantity",
+    "start_mm",
+    "direction",
+    "reflector_mm",
+    "file",
+    "deviation_unit",
+    "sign",
+    "env_corrected",
+    "reader_json",
+    "sensitive",
+}
 
 
 def _line_from(name: str, group: Group) -> StoredLine:
@@ -866,7 +929,10 @@ def _line_from(name: str, group: Group) -> StoredLine:
         raw_unit=str(raw.attrs["unit"]),
         source_bytes=np.asarray(source.value, dtype=np.uint8).tobytes(),
         provenance=provenance,
-        capture=None if capture is None else {
-            k: np.asarray(v.value) for k, v in capture.children.items()  # type: ignore[union-attr]
+        capture=None
+        if capture is None
+        else {
+            k: np.asarray(v.value)
+            for k, v in capture.children.items()  # type: ignore[union-attr]
         },
     )

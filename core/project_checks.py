@@ -63,8 +63,10 @@ def check_structure(handle: h5py.File, path: str | Path) -> None:
                 raise refuse(where, "is a link to nothing")
             identity = _identity(item)
             if identity in seen:
-                raise refuse(where, f"is a second link to {seen[identity]} (a hard-link cycle "
-                             "or a shared object)")
+                raise refuse(
+                    where,
+                    f"is a second link to {seen[identity]} (a hard-link cycle or a shared object)",
+                )
             seen[identity] = where
             if isinstance(item, h5py.Group):
                 walk(item, where)
@@ -89,9 +91,7 @@ def _identity(item: h5py.HLObject) -> tuple[int, ...]:
     return (info.fileno, int(info.addr))
 
 
-def _check_dataset(
-    data: h5py.Dataset, where: str, refuse: Callable[[str, str], UserError]
-) -> int:
+def _check_dataset(data: h5py.Dataset, where: str, refuse: Callable[[str, str], UserError]) -> int:
     plist = data.id.get_create_plist()
     if plist.get_layout() == h5py.h5d.VIRTUAL:
         raise refuse(where, "is a virtual dataset (its values come from other files)")

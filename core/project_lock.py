@@ -164,7 +164,8 @@ class ProjectLock:
             if previous.strip():
                 log.warning(
                     "note: %s: cleared a stale lock left by %s, which is no longer running",
-                    self.path, f"process {pid}" if pid else "a process",
+                    self.path,
+                    f"process {pid}" if pid else "a process",
                 )
             os.ftruncate(fd, 0)
             os.pwrite(fd, f"{os.getpid()} {_MARK}\n".encode("ascii"), 0)
@@ -185,13 +186,17 @@ class ProjectLock:
                 return None, holder
             if holder is None:
                 return None, 0  # being created right now: its pid is not written yet
-            log.warning("note: %s: cleared a stale lock left by process %s, which is no longer "
-                        "running", self.path, holder)
+            log.warning(
+                "note: %s: cleared a stale lock left by process %s, which is no longer running",
+                self.path,
+                holder,
+            )
             self.path.unlink(missing_ok=True)
             return self._attempt_by_pid()
         except OSError as exc:
-            raise UserError(f"{self.path}: cannot create the lock file "
-                            f"({exc.strerror or exc})") from None
+            raise UserError(
+                f"{self.path}: cannot create the lock file ({exc.strerror or exc})"
+            ) from None
         os.write(fd, str(os.getpid()).encode("ascii"))
         os.close(fd)
         return None, None
@@ -221,11 +226,13 @@ class ProjectLock:
             except FileNotFoundError:
                 continue
             except OSError as exc:
-                log.warning("note: %s: cannot remove this temporary file left by an interrupted "
-                            "save (%s)", candidate, exc.strerror or exc)
+                log.warning(
+                    "note: %s: cannot remove this temporary file left by an interrupted save (%s)",
+                    candidate,
+                    exc.strerror or exc,
+                )
                 continue
-            log.warning("note: removed %s, a temporary file left by an interrupted save",
-                        candidate)
+            log.warning("note: removed %s, a temporary file left by an interrupted save", candidate)
 
 
 def recover(project: str | Path) -> None:

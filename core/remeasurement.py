@@ -133,9 +133,16 @@ def compare(before: Sequence[Line], after: Sequence[Line]) -> Comparison:
     """The re-measurement ``after`` beside the original ``before`` (module notes)."""
     pairs = []
     for original, again in match(before, after):
-        pairs.append(LinePair(original.name, again.name, original.spec.quantity,
-                              line_axis(original), evaluate(original.data, original.spec.unit),
-                              evaluate(again.data, again.spec.unit)))
+        pairs.append(
+            LinePair(
+                original.name,
+                again.name,
+                original.spec.quantity,
+                line_axis(original),
+                evaluate(original.data, original.spec.unit),
+                evaluate(again.data, again.spec.unit),
+            )
+        )
     matched = {p.after_name for p in pairs}
     axes = []
     for axis in AXES:
@@ -144,11 +151,18 @@ def compare(before: Sequence[Line], after: Sequence[Line]) -> Comparison:
             continue
         mean_before = np.concatenate([p.before.mean for p in along])
         mean_after = np.concatenate([p.after.mean for p in along])
-        axes.append(AxisRates(
-            axis, tuple(p.name for p in along),
-            _rms(mean_before), _rms(mean_after),
-            max(p.before.M_um for p in along), max(p.after.M_um for p in along),
-            max(p.before.A_um for p in along), max(p.after.A_um for p in along)))
+        axes.append(
+            AxisRates(
+                axis,
+                tuple(p.name for p in along),
+                _rms(mean_before),
+                _rms(mean_after),
+                max(p.before.M_um for p in along),
+                max(p.after.M_um for p in along),
+                max(p.before.A_um for p in along),
+                max(p.after.A_um for p in along),
+            )
+        )
     unmatched = tuple(line.name for line in after if line.name not in matched)
     return Comparison(tuple(pairs), tuple(axes), unmatched)
 

@@ -100,5 +100,3 @@ Block = Paragraph | Table | CurveGrid | BarChart | IsoGraphs | Signatures
 class Section:
     title: str
     blocks: tuple[Block, ...]
-
-

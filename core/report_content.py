@@ -111,8 +111,10 @@ class ReportContent:
             "sources": dict(self.sources),
             "conformance": None if self.conformance is None else self.conformance.to_json(),
             "sections": [
-                {"title": s.title,
-                 "blocks": [{"type": type(b).__name__} | _plain(asdict(b)) for b in s.blocks]}
+                {
+                    "title": s.title,
+                    "blocks": [{"type": type(b).__name__} | _plain(asdict(b)) for b in s.blocks],
+                }
                 for s in self.sections
             ],
         }
@@ -181,8 +183,9 @@ def thermal_sections(project: Project) -> list[Section]:
 def build_report(request: ReportRequest) -> ReportContent:
     """Gather the report of a project (module notes give the sources)."""
     if request.tolerance_on not in QUANTITIES:
-        raise UserError(f"tolerance on {request.tolerance_on!r}: use one of "
-                        f"{', '.join(QUANTITIES)}")
+        raise UserError(
+            f"tolerance on {request.tolerance_on!r}: use one of {', '.join(QUANTITIES)}"
+        )
     path = Path(request.project_path)
     project = Project.open(path)
     if project.machine is None or not project.lines:
@@ -199,11 +202,14 @@ def build_report(request: ReportRequest) -> ReportContent:
         else:
             tree = results.identification_tree()
             if tree is None:
-                raise UserError(f"{path}: no identification in the project; the volumetric "
-                                "error cannot be decided on (run volucal identify first)")
+                raise UserError(
+                    f"{path}: no identification in the project; the volumetric "
+                    "error cannot be decided on (run volucal identify first)"
+                )
             model = error_model_from_tree(tree["model"], project.machine)
-            conformance = volumetric_conformance(model, tree["covariance"], budget,
-                                                 request.tolerance_um)
+            conformance = volumetric_conformance(
+                model, tree["covariance"], budget, request.tolerance_um
+            )
     compensation_dir = request.compensation_dir or results.compensation_dir(path)
     verification, verification_source = _verification(results, path, request.report_json)
     certificate = Certificate.of_project(project)
@@ -211,8 +217,9 @@ def build_report(request: ReportRequest) -> ReportContent:
         certificate = certificate.with_values(**request.certificate.to_json())
     if not certificate.get("issued"):  # issued when written, unless the user dated it
         certificate = certificate.with_values(issued=datetime.now(UTC).strftime("%Y-%m-%d"))
-    tolerances = (request.tolerances if request.tolerances is not None
-                  else Tolerances.of_project(project))
+    tolerances = (
+        request.tolerances if request.tolerances is not None else Tolerances.of_project(project)
+    )
     comparison = None
     if request.remeasurement_path is not None:
         again = Project.open(request.remeasurement_path)
@@ -273,18 +280,23 @@ class _Results:
         self.loop = self._report_json("loops", "main")
         self.sensitivity = self._report_json("sensitivity", "main")
         self.compensation_name = self._compensation_name()
-        self.compensation = (self._report_json("compensation", self.compensation_name)
-                             if self.compensation_name else None)
+        self.compensation = (
+            self._report_json("compensation", self.compensation_name)
+            if self.compensation_name
+            else None
+        )
         tree = self.identification_tree()
         self.parameters = json.loads(tree["parameters_json"]) if tree else None
         # the plan's identifiability is that of the 21-error fit ("main"): the loop's refits
         # skip the per-line redundancy test
-        plan_tree = (self.project.result("identifications", "main")
-                     if "main" in self.project.results("identifications") else None)
+        plan_tree = (
+            self.project.result("identifications", "main")
+            if "main" in self.project.results("identifications")
+            else None
+        )
         if plan_tree is None or "identifiability_json" not in plan_tree:
             plan_tree = tree
-        self.identifiability = (json.loads(plan_tree["identifiability_json"]) if plan_tree
-                                else None)
+        self.identifiability = json.loads(plan_tree["identifiability_json"]) if plan_tree else None
 
     def _report_json(self, kind: str, name: str) -> dict[str, Any] | None:
         if name not in self.project.results(kind):
@@ -301,8 +313,11 @@ class _Results:
     def identification_name(self) -> str | None:
         """The final identification: "loop", else "main", else the last one stored; only
         identification trees (with the parameters block) count."""
-        names = [n for n in self.project.results("identifications")
-                 if "parameters_json" in self.project.result("identifications", n)]
+        names = [
+            n
+            for n in self.project.results("identifications")
+            if "parameters_json" in self.project.result("identifications", n)
+        ]
         for name in ("loop", "main"):
             if name in names:
                 return name
@@ -322,8 +337,9 @@ class _Results:
         return beside if beside.is_dir() else None
 
 
-def _verification(results: _Results, project_path: Path,
-                  report_json: Path | None) -> tuple[dict[str, Any] | None, str]:
+def _verification(
+    results: _Results, project_path: Path, report_json: Path | None
+) -> tuple[dict[str, Any] | None, str]:
     """The verified rates and where they came from."""
     stored = (results.compensation or {}).get("verified_on_virtual_machine")
     if stored:
@@ -338,13 +354,18 @@ def _verification(results: _Results, project_path: Path,
     except (OSError, ValueError) as exc:
         raise UserError(f"{candidate}: not a readable report.json ({exc})") from None
     loop = results.loop or {}
-    same_run = (isinstance(report, dict) and loop
-                and report.get("residual_rms_um") == loop.get("residual_rms_um")
-                and report.get("cv_rms_um") == loop.get("cv_rms_um"))
+    same_run = (
+        isinstance(report, dict)
+        and loop
+        and report.get("residual_rms_um") == loop.get("residual_rms_um")
+        and report.get("cv_rms_um") == loop.get("cv_rms_um")
+    )
     if not same_run:
         if report_json is not None:
-            raise UserError(f"{report_json}: this report.json is not of the project's run (its "
-                            "loop results differ)")
+            raise UserError(
+                f"{report_json}: this report.json is not of the project's run (its "
+                "loop results differ)"
+            )
         return None, ""
     verified = report.get("compensation", {}).get("verified_on_virtual_machine")
     return (verified, str(candidate)) if verified else (None, "")
@@ -355,8 +376,13 @@ def _verification(results: _Results, project_path: Path,
 # --------------------------------------------------------------------------------------------
 
 
-def _summary(project: Project, results: _Results, conformance: Conformance | None,
-             verification: Mapping[str, Any] | None, tolerances: str = "") -> Section:
+def _summary(
+    project: Project,
+    results: _Results,
+    conformance: Conformance | None,
+    verification: Mapping[str, Any] | None,
+    tolerances: str = "",
+) -> Section:
     machine = project.machine
     assert machine is not None
     readings = sum(int(np.isfinite(s.corrected.deviations).sum()) for s in project.lines.values())
@@ -367,35 +393,63 @@ def _summary(project: Project, results: _Results, conformance: Conformance | Non
     ]
     ident = results.identifiability
     if ident:
-        pairs.append(("Identifiability", f"rank {ident['rank']} of {ident['unknowns']} unknowns"
-                      + (f"; not identified: {', '.join(ident['unidentifiable'])}"
-                         if ident["unidentifiable"] else "; every error identified")))
+        pairs.append(
+            (
+                "Identifiability",
+                f"rank {ident['rank']} of {ident['unknowns']} unknowns"
+                + (
+                    f"; not identified: {', '.join(ident['unidentifiable'])}"
+                    if ident["unidentifiable"]
+                    else "; every error identified"
+                ),
+            )
+        )
     loop = results.loop
     if loop:
         rms = loop["residual_rms_um"]
         cv = loop["cv_rms_um"]
-        pairs.append(("Residual RMS (closed loop)",
-                      f"{_f(rms['before_loop'])} → {_f(rms['after_loop'])} µm; cross-validated "
-                      f"{_f(cv['before_loop'])} → {_f(cv['after_loop'])} µm ({cv['method']})"))
+        pairs.append(
+            (
+                "Residual RMS (closed loop)",
+                f"{_f(rms['before_loop'])} → {_f(rms['after_loop'])} µm; cross-validated "
+                f"{_f(cv['before_loop'])} → {_f(cv['after_loop'])} µm ({cv['method']})",
+            )
+        )
         kept = [f"{e['kind']} {e['axis'] or ''}".strip() for e in loop.get("effects", [])]
         pairs.append(("Effects added by the loop", ", ".join(kept) or "none"))
     compensation = results.compensation
     if compensation:
         rate = compensation["rate_percent"]
-        pairs.append(("Predicted compensation rate (RMS)",
-                      "volumetric " + _xyz(rate["volumetric"], "%") + "; axis tables "
-                      + _xyz(rate["axis_tables"], "%")))
+        pairs.append(
+            (
+                "Predicted compensation rate (RMS)",
+                "volumetric "
+                + _xyz(rate["volumetric"], "%")
+                + "; axis tables "
+                + _xyz(rate["axis_tables"], "%"),
+            )
+        )
     if verification:
-        best = max(verification.items(),
-                   key=lambda kv: np.mean(list(kv[1]["remeasured"]["rms_percent"].values())))
-        pairs.append(("Verified compensation rate (re-measured, RMS)",
-                      f"{best[0]}: " + _xyz(best[1]["remeasured"]["rms_percent"], "%")))
+        best = max(
+            verification.items(),
+            key=lambda kv: np.mean(list(kv[1]["remeasured"]["rms_percent"].values())),
+        )
+        pairs.append(
+            (
+                "Verified compensation rate (re-measured, RMS)",
+                f"{best[0]}: " + _xyz(best[1]["remeasured"]["rms_percent"], "%"),
+            )
+        )
     if tolerances:
         pairs.append(("Tolerances per axis (ISO 230-2)", tolerances))
     if conformance is not None:
-        pairs.append(("Conformance (ISO 14253-1)",
-                      f"{conformance.verdict}: {conformance.quantity}, "
-                      f"T = {_f(conformance.tolerance_um)} µm"))
+        pairs.append(
+            (
+                "Conformance (ISO 14253-1)",
+                f"{conformance.verdict}: {conformance.quantity}, "
+                f"T = {_f(conformance.tolerance_um)} µm",
+            )
+        )
     return Section("Summary", (_pairs(pairs),))
 
 
@@ -406,8 +460,13 @@ def _machine(project: Project) -> Section:
     for axis in AXES:
         low, high = machine.stroke(axis)
         lead = machine.screw_lead_mm.get(axis)
-        rows.append((f"Axis {axis}", f"stroke {_f(low, 1)} … {_f(high, 1)} mm"
-                     + (f", screw lead {_f(lead, 1)} mm" if lead else "")))
+        rows.append(
+            (
+                f"Axis {axis}",
+                f"stroke {_f(low, 1)} … {_f(high, 1)} mm"
+                + (f", screw lead {_f(lead, 1)} mm" if lead else ""),
+            )
+        )
     rows.append(("Tool offset", _vec(machine.tool_offset_mm) + " mm"))
     rows.append(("Reference position", _vec(machine.reference_mm) + " mm (every error zero)"))
     return Section("Machine", (_pairs(rows),))
@@ -418,25 +477,51 @@ def _plan(project: Project, lines: Sequence[Line], results: _Results) -> Section
     for line in lines:
         s = line.spec
         up = int(np.sum(line.data.run_direction > 0))
-        rows.append((
-            s.name, s.quantity, _vec(s.start_mm), _vec(s.direction, 3),
-            "" if s.sensitive is None else _vec(s.sensitive, 3), _vec(s.reflector_mm),
-            str(line.data.targets_mm.size), f"{up}/{line.data.runs - up}",
-        ))
+        rows.append(
+            (
+                s.name,
+                s.quantity,
+                _vec(s.start_mm),
+                _vec(s.direction, 3),
+                "" if s.sensitive is None else _vec(s.sensitive, 3),
+                _vec(s.reflector_mm),
+                str(line.data.targets_mm.size),
+                f"{up}/{line.data.runs - up}",
+            )
+        )
     blocks: list[Block] = [
-        Paragraph(f"{len(lines)} lines in session order. Plan file: "
-                  f"{Path(project.plan_path).name if project.plan_path else '(not recorded)'}. "
-                  "A line reads at start + target · "
-                  "direction; the reflector is the optics' offset from the spindle gauge point."),
-        Table(("line", "quantity", "start mm", "direction", "sensitive", "reflector mm",
-               "targets", "runs ↑/↓"), tuple(rows), "llrrrrrr"),
+        Paragraph(
+            f"{len(lines)} lines in session order. Plan file: "
+            f"{Path(project.plan_path).name if project.plan_path else '(not recorded)'}. "
+            "A line reads at start + target · "
+            "direction; the reflector is the optics' offset from the spindle gauge point."
+        ),
+        Table(
+            (
+                "line",
+                "quantity",
+                "start mm",
+                "direction",
+                "sensitive",
+                "reflector mm",
+                "targets",
+                "runs ↑/↓",
+            ),
+            tuple(rows),
+            "llrrrrrr",
+        ),
     ]
     ident = results.identifiability
     if ident:
-        text = (f"Identifiability: rank {ident['rank']} of {ident['unknowns']} unknowns. "
-                + ("Not identified: " + "; ".join(ident["unidentifiable"]) + ". "
-                   if ident["unidentifiable"] else "Every error is identified by this plan. ")
-                + _redundancy(ident["redundant_lines"], len(lines)))
+        text = (
+            f"Identifiability: rank {ident['rank']} of {ident['unknowns']} unknowns. "
+            + (
+                "Not identified: " + "; ".join(ident["unidentifiable"]) + ". "
+                if ident["unidentifiable"]
+                else "Every error is identified by this plan. "
+            )
+            + _redundancy(ident["redundant_lines"], len(lines))
+        )
         blocks.append(Paragraph(text))
     return Section("Measurement plan", tuple(blocks))
 
@@ -445,9 +530,11 @@ def _redundancy(redundant: Sequence[str], count: int) -> str:
     if not redundant:
         return "No line is redundant: every line is needed for the rank."
     if len(redundant) == count:
-        return (f"Every one of the {count} lines is redundant (the rank holds without it), so "
-                "leave-one-line-out cross-validation is possible.")
-    return ("Redundant lines (the rank holds without each): " + ", ".join(redundant) + ".")
+        return (
+            f"Every one of the {count} lines is redundant (the rank holds without it), so "
+            "leave-one-line-out cross-validation is possible."
+        )
+    return "Redundant lines (the rank holds without each): " + ", ".join(redundant) + "."
 
 
 def _traceability(project: Project, path: Path, lines: Sequence[Line]) -> Section:
@@ -466,23 +553,40 @@ def _traceability(project: Project, path: Path, lines: Sequence[Line]) -> Sectio
         digest = hashlib.sha256(stored.source_bytes).hexdigest()
         start, end = _line_times(stored.corrected)
         when = _utc(start) if stored.corrected.start_time else "no date in the log"
-        logs.append((line.name, str(prov.get("source_file", "")), str(prov.get("format", "")),
-                     str(meta.get("serial", "")), str(meta.get("operator", "")),
-                     when + (f" (log: {meta['date']})" if meta.get("date") else ""),
-                     f"{(end - start) / 60:.0f} min", digest[:16]))
+        logs.append(
+            (
+                line.name,
+                str(prov.get("source_file", "")),
+                str(prov.get("format", "")),
+                str(meta.get("serial", "")),
+                str(meta.get("operator", "")),
+                when + (f" (log: {meta['date']})" if meta.get("date") else ""),
+                f"{(end - start) / 60:.0f} min",
+                digest[:16],
+            )
+        )
         env = stored.corrected.environment
-        environment.append((
-            line.name, _pair(env.air_temp_c), _pair(env.air_pressure_kpa),
-            _pair(env.air_humidity_pct),
-            "; ".join(_pair(m) for m in env.material_temp_c) or "–",
-            _f(env.expansion_ppm_per_c, 1) if env.expansion_ppm_per_c is not None else "–",
-            "yes" if line.spec.env_corrected else "by volucal",
-        ))
-    conventions = sorted({str(project.lines[n.name].provenance.get("sign_convention", ""))
-                          for n in lines} - {""})
-    notes = sorted({str(c) for s in project.lines.values()
-                    for c in [*s.provenance.get("corrections", []),
-                              *s.provenance.get("notes", [])]})
+        environment.append(
+            (
+                line.name,
+                _pair(env.air_temp_c),
+                _pair(env.air_pressure_kpa),
+                _pair(env.air_humidity_pct),
+                "; ".join(_pair(m) for m in env.material_temp_c) or "–",
+                _f(env.expansion_ppm_per_c, 1) if env.expansion_ppm_per_c is not None else "–",
+                "yes" if line.spec.env_corrected else "by volucal",
+            )
+        )
+    conventions = sorted(
+        {str(project.lines[n.name].provenance.get("sign_convention", "")) for n in lines} - {""}
+    )
+    notes = sorted(
+        {
+            str(c)
+            for s in project.lines.values()
+            for c in [*s.provenance.get("corrections", []), *s.provenance.get("notes", [])]
+        }
+    )
     pairs = [
         ("Project file", f"{path.name} (SHA-256 {_sha256_file(path)})"),
         ("Project created / modified", f"{project.created} / {project.modified}"),
@@ -495,12 +599,35 @@ def _traceability(project: Project, path: Path, lines: Sequence[Line]) -> Sectio
     ]
     blocks: list[Block] = [
         _pairs(pairs),
-        Table(("line", "file", "format", "serial no.", "operator", "start (UTC)", "duration",
-               "SHA-256 (first 16)"), tuple(logs), "lllllllll",
-              caption="Logs as imported; the bytes of every file are kept in the project."),
-        Table(("line", "air °C", "air kPa", "humidity %", "material °C", "α ppm/°C",
-               "env. corrected"), tuple(environment), "lrrrrrl",
-              caption="Environment from the logs (start – end of each line)."),
+        Table(
+            (
+                "line",
+                "file",
+                "format",
+                "serial no.",
+                "operator",
+                "start (UTC)",
+                "duration",
+                "SHA-256 (first 16)",
+            ),
+            tuple(logs),
+            "lllllllll",
+            caption="Logs as imported; the bytes of every file are kept in the project.",
+        ),
+        Table(
+            (
+                "line",
+                "air °C",
+                "air kPa",
+                "humidity %",
+                "material °C",
+                "α ppm/°C",
+                "env. corrected",
+            ),
+            tuple(environment),
+            "lrrrrrl",
+            caption="Environment from the logs (start – end of each line).",
+        ),
     ]
     if notes:
         blocks.append(Paragraph("Corrections and notes at import: " + "; ".join(notes), "note"))
@@ -514,29 +641,59 @@ def _iso230_2(lines: Sequence[Line], units: DisplayUnits) -> Section:
         if line.spec.quantity == "straightness":
             mean = np.nanmean(line.data.deviations, axis=0)
             ls, ep = straightness(line.data.targets_mm, mean)
-            flat.append((line.name, _vec(line.spec.direction, 3), _vec(line.spec.sensitive, 3),
-                         units.text(ls, "um", False), units.text(ep, "um", False)))
+            flat.append(
+                (
+                    line.name,
+                    _vec(line.spec.direction, 3),
+                    _vec(line.spec.sensitive, 3),
+                    units.text(ls, "um", False),
+                    units.text(ep, "um", False),
+                )
+            )
             continue
         r = evaluate(line.data, line.spec.unit)
-        rows.append((line.name, units.symbol(r.unit), f"{r.runs_up}/{r.runs_down}",
-                     *(units.text(getattr(r, f"{key}_um"), r.unit, False) for key in (
-                         "A", "A_up", "A_down", "E", "R", "B", "mean_reversal", "M"))))
+        rows.append(
+            (
+                line.name,
+                units.symbol(r.unit),
+                f"{r.runs_up}/{r.runs_down}",
+                *(
+                    units.text(getattr(r, f"{key}_um"), r.unit, False)
+                    for key in ("A", "A_up", "A_down", "E", "R", "B", "mean_reversal", "M")
+                ),
+            )
+        )
     blocks: list[Block] = [
-        Paragraph("Positioning values of ISO 230-2 (clause 2) from the corrected readings of "
-                  "every linear and angular line: accuracy A (bidirectional, ↑, ↓), systematic "
-                  "positioning error E, repeatability R, reversal B and mean reversal B̄, mean "
-                  f"bidirectional positioning error M. Deviations in {units.symbol('um')}, "
-                  f"angular lines in {units.symbol('urad')}."),
-        Table(("line", "unit", "runs ↑/↓", "A", "A↑", "A↓", "E", "R", "B", "B̄", "M"),
-              tuple(rows), "llrrrrrrrrr"),
+        Paragraph(
+            "Positioning values of ISO 230-2 (clause 2) from the corrected readings of "
+            "every linear and angular line: accuracy A (bidirectional, ↑, ↓), systematic "
+            "positioning error E, repeatability R, reversal B and mean reversal B̄, mean "
+            f"bidirectional positioning error M. Deviations in {units.symbol('um')}, "
+            f"angular lines in {units.symbol('urad')}."
+        ),
+        Table(
+            ("line", "unit", "runs ↑/↓", "A", "A↑", "A↓", "E", "R", "B", "B̄", "M"),
+            tuple(rows),
+            "llrrrrrrrrr",
+        ),
     ]
     if flat:
         blocks += [
-            Paragraph("Straightness (ISO 230-1) of the mean profile of each straightness line, "
-                      "about the least-squares and the end-point reference lines."),
-            Table(("line", "direction", "sensitive", f"least squares {units.symbol('um')}",
-                   f"end point {units.symbol('um')}"),
-                  tuple(flat), "lrrrr"),
+            Paragraph(
+                "Straightness (ISO 230-1) of the mean profile of each straightness line, "
+                "about the least-squares and the end-point reference lines."
+            ),
+            Table(
+                (
+                    "line",
+                    "direction",
+                    "sensitive",
+                    f"least squares {units.symbol('um')}",
+                    f"end point {units.symbol('um')}",
+                ),
+                tuple(flat),
+                "lrrrr",
+            ),
         ]
     return Section("Positioning and straightness (ISO 230-2, ISO 230-1)", tuple(blocks))
 
@@ -550,33 +707,54 @@ def _errors(results: _Results, units: DisplayUnits) -> Section:
         entry = parameters[eid]
         info = ERROR_INFO[eid]
         std = np.asarray(entry["std"], dtype=float)
-        curves.append(Curve(
-            title=f"{error_label(eid)} — {info.kind}",
-            unit=units.symbol(info.unit),
-            axis=str(info.axis),
-            position_mm=tuple(float(v) for v in entry["position_mm"]),
-            value=tuple(float(v) for v in units.convert(entry["value"], info.unit)),
-            expanded_uncertainty=tuple(float(v) for v in units.convert(2.0 * std, info.unit)),
-        ))
+        curves.append(
+            Curve(
+                title=f"{error_label(eid)} — {info.kind}",
+                unit=units.symbol(info.unit),
+                axis=str(info.axis),
+                position_mm=tuple(float(v) for v in entry["position_mm"]),
+                value=tuple(float(v) for v in units.convert(entry["value"], info.unit)),
+                expanded_uncertainty=tuple(float(v) for v in units.convert(2.0 * std, info.unit)),
+            )
+        )
     rows = []
     for eid in SQUARENESS_IDS:
         entry = parameters[eid]
         value = float(entry["value"][0])
         u = float(entry["std"][0])
-        rows.append((error_label(eid), ERROR_INFO[eid].description,
-                     units.text(value, "urad", False), units.text(2 * u, "urad", False),
-                     DisplayUnits(angle="arcsec").text(value, "urad", False)))
+        rows.append(
+            (
+                error_label(eid),
+                ERROR_INFO[eid].description,
+                units.text(value, "urad", False),
+                units.text(2 * u, "urad", False),
+                DisplayUnits(angle="arcsec").text(value, "urad", False),
+            )
+        )
     name = results.identification_name()
-    return Section("Identified errors", (
-        Paragraph(f"The 21 geometric errors (ISO 230-1 ids, the paper's symbols in brackets) of "
-                  f"the identification '{name}', each over its axis stroke; the band is the "
-                  "expanded uncertainty U (k = 2): the statistical covariance of the fit and, for "
-                  "positioning errors, the set-up budget. Zero at the reference position."),
-        CurveGrid(tuple(curves), columns=3),
-        Table(("squareness", "meaning", f"value {units.symbol('urad')}",
-               f"U {units.symbol('urad')} (k = 2)", "value arcsec"),
-              tuple(rows), "llrrr"),
-    ))
+    return Section(
+        "Identified errors",
+        (
+            Paragraph(
+                f"The 21 geometric errors (ISO 230-1 ids, the paper's symbols in brackets) of "
+                f"the identification '{name}', each over its axis stroke; the band is the "
+                "expanded uncertainty U (k = 2): the statistical covariance of the fit and, for "
+                "positioning errors, the set-up budget. Zero at the reference position."
+            ),
+            CurveGrid(tuple(curves), columns=3),
+            Table(
+                (
+                    "squareness",
+                    "meaning",
+                    f"value {units.symbol('urad')}",
+                    f"U {units.symbol('urad')} (k = 2)",
+                    "value arcsec",
+                ),
+                tuple(rows),
+                "llrrr",
+            ),
+        ),
+    )
 
 
 def _loop(results: _Results) -> Section:
@@ -586,36 +764,87 @@ def _loop(results: _Results) -> Section:
     steps = []
     for step in loop["loop"]:
         effect = step["effect"]
-        steps.append((str(step["step"]), effect.get("label", effect["kind"]),
-                      "kept" if step["kept"] else "rejected",
-                      _f(step["rms_um"]["before"]), _f(step["rms_um"]["after"]),
-                      _f(step["cv_rms_um"]["before"]), _f(step["cv_rms_um"]["after"]),
-                      str(step.get("reason", ""))))
+        steps.append(
+            (
+                str(step["step"]),
+                effect.get("label", effect["kind"]),
+                "kept" if step["kept"] else "rejected",
+                _f(step["rms_um"]["before"]),
+                _f(step["rms_um"]["after"]),
+                _f(step["cv_rms_um"]["before"]),
+                _f(step["cv_rms_um"]["after"]),
+                str(step.get("reason", "")),
+            )
+        )
     rms = loop["residual_rms_um"]
     cv = loop["cv_rms_um"]
-    steps.append(("", "whole loop", "", _f(rms["before_loop"]), _f(rms["after_loop"]),
-                  _f(cv["before_loop"]), _f(cv["after_loop"]), cv["method"]))
+    steps.append(
+        (
+            "",
+            "whole loop",
+            "",
+            _f(rms["before_loop"]),
+            _f(rms["after_loop"]),
+            _f(cv["before_loop"]),
+            _f(cv["after_loop"]),
+            cv["method"],
+        )
+    )
     blocks: list[Block] = [
-        Paragraph("Each step adds the effect the residual points to, refits, and keeps it only "
-                  "if the cross-validated RMS improves by a clear margin (docs/method.md §3). "
-                  "RMS over the displacement readings, µm."),
-        Table(("step", "effect", "decision", "RMS before", "RMS after", "CV before", "CV after",
-               "reason"), tuple(steps), "llcrrrrl"),
+        Paragraph(
+            "Each step adds the effect the residual points to, refits, and keeps it only "
+            "if the cross-validated RMS improves by a clear margin (docs/method.md §3). "
+            "RMS over the displacement readings, µm."
+        ),
+        Table(
+            (
+                "step",
+                "effect",
+                "decision",
+                "RMS before",
+                "RMS after",
+                "CV before",
+                "CV after",
+                "reason",
+            ),
+            tuple(steps),
+            "llcrrrrl",
+        ),
     ]
     groups = _group_rms(loop["loop"])
     if groups:
         names, before, after = groups
-        blocks.append(BarChart("Residual RMS per group of lines, before and after the loop",
-                               names, ("before", "after"), (before, after), (), "RMS µm (µrad "
-                               "for angular)"))
-    effects = [(e["kind"], e["axis"] or "set-up", _params(e["parameters"]))
-               for e in loop.get("effects", [])]
+        blocks.append(
+            BarChart(
+                "Residual RMS per group of lines, before and after the loop",
+                names,
+                ("before", "after"),
+                (before, after),
+                (),
+                "RMS µm (µrad for angular)",
+            )
+        )
+    effects = [
+        (e["kind"], e["axis"] or "set-up", _params(e["parameters"]))
+        for e in loop.get("effects", [])
+    ]
     if effects:
-        blocks.append(Table(("effect", "axis", "parameters"), tuple(effects), "lll",
-                            caption="Effects kept in the final model."))
+        blocks.append(
+            Table(
+                ("effect", "axis", "parameters"),
+                tuple(effects),
+                "lll",
+                caption="Effects kept in the final model.",
+            )
+        )
     for item in loop.get("unexplained", []):
-        blocks.append(Paragraph(f"Unexplained: {item['description']} ({item['where']}, "
-                                f"{_f(item.get('magnitude_um'))} µm)", "note"))
+        blocks.append(
+            Paragraph(
+                f"Unexplained: {item['description']} ({item['where']}, "
+                f"{_f(item.get('magnitude_um'))} µm)",
+                "note",
+            )
+        )
     if not loop.get("unexplained"):
         blocks.append(Paragraph("Nothing unexplained is left in the residual.", "note"))
     for warning in loop.get("warnings", []):
@@ -623,8 +852,9 @@ def _loop(results: _Results) -> Section:
     return Section("Closed loop", tuple(blocks))
 
 
-def _group_rms(steps: Sequence[Mapping[str, Any]]) -> tuple[
-        tuple[str, ...], tuple[float, ...], tuple[float, ...]] | None:
+def _group_rms(
+    steps: Sequence[Mapping[str, Any]],
+) -> tuple[tuple[str, ...], tuple[float, ...], tuple[float, ...]] | None:
     if not steps or "rms_um_by_group" not in steps[0]:
         return None
     before = steps[0]["rms_um_by_group"]["before"]
@@ -637,13 +867,18 @@ def _group_rms(steps: Sequence[Mapping[str, Any]]) -> tuple[
 def _sensitivity(results: _Results) -> Section:
     report = results.sensitivity
     if not report:
-        return Section("Sensitivity ranking (EFAST)",
-                       (Paragraph("The sensitivity analysis was not run on this project."),))
-    blocks: list[Block] = [Paragraph(
-        "Global sensitivity by EFAST (paper eqs. 8–18): first-order S1 and total ST indices of "
-        "each volumetric error component (Ex, Ey, Ez) and of ET = |E| over the workspace, with "
-        "the identified errors as factors. The largest by ST; ± one standard deviation over "
-        "independent phase draws.")]
+        return Section(
+            "Sensitivity ranking (EFAST)",
+            (Paragraph("The sensitivity analysis was not run on this project."),),
+        )
+    blocks: list[Block] = [
+        Paragraph(
+            "Global sensitivity by EFAST (paper eqs. 8–18): first-order S1 and total ST indices of "
+            "each volumetric error component (Ex, Ey, Ez) and of ET = |E| over the workspace, with "
+            "the identified errors as factors. The largest by ST; ± one standard deviation over "
+            "independent phase draws."
+        )
+    ]
     for output in ("Ex", "Ey", "Ez", "ET"):
         if output not in report:
             continue
@@ -652,48 +887,121 @@ def _sensitivity(results: _Results) -> Section:
         ranked = sorted(ERROR_IDS, key=lambda e: -_num(st.get(e)))[:TOP_SENSITIVITY]
         s1_std = block.get("S1_std", {})
         st_std = block.get("ST_std", {})
-        rows = tuple((str(k + 1), error_label(e), _pm(block["S1"].get(e), s1_std.get(e)),
-                      _pm(st.get(e), st_std.get(e))) for k, e in enumerate(ranked))
-        blocks.append(Table(("rank", "error", "S1", "ST"), rows, "lrrr",
-                            caption=f"{output}: the {len(ranked)} most influential errors"))
-        blocks.append(BarChart(
-            f"{output}: first-order and total indices", tuple(ranked), ("S1", "ST"),
-            (tuple(_num(block["S1"].get(e)) for e in ranked),
-             tuple(_num(st.get(e)) for e in ranked)),
-            (tuple(_num(s1_std.get(e)) for e in ranked),
-             tuple(_num(st_std.get(e)) for e in ranked)) if s1_std else (),
-            "index"))
+        rows = tuple(
+            (
+                str(k + 1),
+                error_label(e),
+                _pm(block["S1"].get(e), s1_std.get(e)),
+                _pm(st.get(e), st_std.get(e)),
+            )
+            for k, e in enumerate(ranked)
+        )
+        blocks.append(
+            Table(
+                ("rank", "error", "S1", "ST"),
+                rows,
+                "lrrr",
+                caption=f"{output}: the {len(ranked)} most influential errors",
+            )
+        )
+        blocks.append(
+            BarChart(
+                f"{output}: first-order and total indices",
+                tuple(ranked),
+                ("S1", "ST"),
+                (
+                    tuple(_num(block["S1"].get(e)) for e in ranked),
+                    tuple(_num(st.get(e)) for e in ranked),
+                ),
+                (
+                    tuple(_num(s1_std.get(e)) for e in ranked),
+                    tuple(_num(st_std.get(e)) for e in ranked),
+                )
+                if s1_std
+                else (),
+                "index",
+            )
+        )
     return Section("Sensitivity ranking (EFAST)", tuple(blocks))
 
 
-def _compensation(results: _Results, folder: Path | None,
-                  verification: Mapping[str, Any] | None, verification_source: str) -> Section:
+def _compensation(
+    results: _Results,
+    folder: Path | None,
+    verification: Mapping[str, Any] | None,
+    verification_source: str,
+) -> Section:
     report = results.compensation
     if not report:
         return Section("Compensation", (Paragraph("No compensation was computed."),))
     blocks: list[Block] = [Paragraph(f"Rate definition: {report['rate_definition']}.", "note")]
     methods = []
     for name, method in report.get("methods", {}).items():
-        methods.append((name, method["description"], *_xyz_cells(method["rms_percent"]),
-                        *_xyz_cells(method["range_percent"])))
+        methods.append(
+            (
+                name,
+                method["description"],
+                *_xyz_cells(method["rms_percent"]),
+                *_xyz_cells(method["range_percent"]),
+            )
+        )
     if methods:
-        blocks.append(Table(("method", "description", "RMS X %", "RMS Y %", "RMS Z %",
-                             "range X %", "range Y %", "range Z %"), tuple(methods),
-                            "llrrrrrr", caption="Predicted compensation rates on the model."))
+        blocks.append(
+            Table(
+                (
+                    "method",
+                    "description",
+                    "RMS X %",
+                    "RMS Y %",
+                    "RMS Z %",
+                    "range X %",
+                    "range Y %",
+                    "range Z %",
+                ),
+                tuple(methods),
+                "llrrrrrr",
+                caption="Predicted compensation rates on the model.",
+            )
+        )
     if verification:
         rows = []
         for name, check in verification.items():
-            rows.append((name, *_xyz_cells(check["remeasured"]["rms_percent"]),
-                         *_xyz_cells(check["remeasured"]["range_percent"]),
-                         *_xyz_cells(check.get("true_on_grid", {}).get("rms_percent", {}))))
-        blocks.append(Table(
-            ("method", "re-measured RMS X %", "Y %", "Z %", "range X %", "Y %", "Z %",
-             "true grid RMS X %", "Y %", "Z %"), tuple(rows), "lrrrrrrrrr",
-            caption="Verified compensation rates: the plan measured again on the compensated "
-                    f"machine (source: {_source_name(verification_source)})."))
+            rows.append(
+                (
+                    name,
+                    *_xyz_cells(check["remeasured"]["rms_percent"]),
+                    *_xyz_cells(check["remeasured"]["range_percent"]),
+                    *_xyz_cells(check.get("true_on_grid", {}).get("rms_percent", {})),
+                )
+            )
+        blocks.append(
+            Table(
+                (
+                    "method",
+                    "re-measured RMS X %",
+                    "Y %",
+                    "Z %",
+                    "range X %",
+                    "Y %",
+                    "Z %",
+                    "true grid RMS X %",
+                    "Y %",
+                    "Z %",
+                ),
+                tuple(rows),
+                "lrrrrrrrrr",
+                caption="Verified compensation rates: the plan measured again on the compensated "
+                f"machine (source: {_source_name(verification_source)}).",
+            )
+        )
     else:
-        blocks.append(Paragraph("No verification measurement of the compensated machine is "
-                                "recorded; the rates above are predictions.", "note"))
+        blocks.append(
+            Paragraph(
+                "No verification measurement of the compensated machine is "
+                "recorded; the rates above are predictions.",
+                "note",
+            )
+        )
     blocks += _files(report.get("files", []), folder)
     return Section("Compensation", tuple(blocks))
 
@@ -709,69 +1017,119 @@ def _files(names: Sequence[str], folder: Path | None) -> list[Block]:
     folder or a huge file is listed, not read."""
     listed = list(dict.fromkeys(names))
     if folder is None or not folder.is_dir():
-        return [Paragraph(f"Compensation files of the run: {', '.join(listed) or 'none'}. Their "
-                          "folder was not at hand when this report was written, so no checksum "
-                          "is given.", "note")]
+        return [
+            Paragraph(
+                f"Compensation files of the run: {', '.join(listed) or 'none'}. Their "
+                "folder was not at hand when this report was written, so no checksum "
+                "is given.",
+                "note",
+            )
+        ]
     root = folder.resolve()
     rows = []
     for name in listed:
         if Path(name).name != name or name in ("", ".", ".."):
             rows.append((name, "", "not read: not a plain file name"))
             continue
-        found = [folder / name] + sorted(sub / name for sub in folder.iterdir()
-                                         if sub.is_dir() and not sub.is_symlink())
-        files = [f for f in found if f.is_file() and not f.is_symlink()
-                 and f.resolve().is_relative_to(root)]
+        found = [folder / name] + sorted(
+            sub / name for sub in folder.iterdir() if sub.is_dir() and not sub.is_symlink()
+        )
+        files = [
+            f
+            for f in found
+            if f.is_file() and not f.is_symlink() and f.resolve().is_relative_to(root)
+        ]
         if not files:
             rows.append((name, "", "not in the folder"))
         for file in files:
             size = file.stat().st_size
-            digest = (_sha256_file(file) if size <= CHECKSUM_LIMIT_BYTES
-                      else "not read: larger than 64 MiB")
+            digest = (
+                _sha256_file(file)
+                if size <= CHECKSUM_LIMIT_BYTES
+                else "not read: larger than 64 MiB"
+            )
             rows.append((str(file.relative_to(folder)), f"{size}", digest))
-    return [Table(("file", "bytes", "SHA-256"), tuple(rows), "lrl",
-                  caption=f"Compensation files (folder '{folder.name}'), with the checksums to "
-                          "compare with what the controller loaded.")]
+    return [
+        Table(
+            ("file", "bytes", "SHA-256"),
+            tuple(rows),
+            "lrl",
+            caption=f"Compensation files (folder '{folder.name}'), with the checksums to "
+            "compare with what the controller loaded.",
+        )
+    ]
 
 
 def _uncertainty(project: Project, budget: UncertaintyBudget, results: _Results) -> Section:
-    rows = tuple((name, _f(float(getattr(budget, name)), 3), BUDGET_TERMS.get(name, ("", ""))[0],
-                  BUDGET_TERMS.get(name, ("", ""))[1],
-                  "plan" if name in project.uncertainty else "default (not in the plan)")
-                 for name in budget.__dataclass_fields__)
+    rows = tuple(
+        (
+            name,
+            _f(float(getattr(budget, name)), 3),
+            BUDGET_TERMS.get(name, ("", ""))[0],
+            BUDGET_TERMS.get(name, ("", ""))[1],
+            "plan" if name in project.uncertainty else "default (not in the plan)",
+        )
+        for name in budget.__dataclass_fields__
+    )
     sigma = ""
     tree = results.identification_tree()
     if tree is not None and "sigma_scale" in tree:
-        sigma = (f" The a-posteriori standard deviation of unit weight of the fit is "
-                 f"{_f(float(tree['sigma_scale']), 3)}; the covariance is scaled by it.")
-    return Section("Uncertainty statement", (
-        Paragraph(
-            "The uncertainties given are expanded uncertainties U = k·u with coverage factor "
-            "k = 2 (about 95 % for a normal distribution; GUM, ISO 230-9). The standard "
-            "uncertainty u of an identified error combines the statistical covariance of the "
-            "weighted least-squares fit (the readings' scatter propagated through the plan) with "
-            "the set-up budget below, which acts on positioning errors as a scale error over the "
-            "distance from the reference. Rectangular distributions are divided by √3. Combined "
-            f"scale uncertainty: {_f(budget.scale_ppm(), 3)} ppm." + sigma),
-        Table(("budget term", "value", "unit", "meaning", "from"), rows, "lrlll",
-              caption="Set-up budget: the plan's [uncertainty] table; the terms it does not give "
-                      "take volucal's defaults."),
-    ))
+        sigma = (
+            f" The a-posteriori standard deviation of unit weight of the fit is "
+            f"{_f(float(tree['sigma_scale']), 3)}; the covariance is scaled by it."
+        )
+    return Section(
+        "Uncertainty statement",
+        (
+            Paragraph(
+                "The uncertainties given are expanded uncertainties U = k·u with coverage factor "
+                "k = 2 (about 95 % for a normal distribution; GUM, ISO 230-9). The standard "
+                "uncertainty u of an identified error combines the statistical covariance of the "
+                "weighted least-squares fit (the readings' scatter propagated through the plan) with "
+                "the set-up budget below, which acts on positioning errors as a scale error over the "
+                "distance from the reference. Rectangular distributions are divided by √3. Combined "
+                f"scale uncertainty: {_f(budget.scale_ppm(), 3)} ppm." + sigma
+            ),
+            Table(
+                ("budget term", "value", "unit", "meaning", "from"),
+                rows,
+                "lrlll",
+                caption="Set-up budget: the plan's [uncertainty] table; the terms it does not give "
+                "take volucal's defaults.",
+            ),
+        ),
+    )
 
 
 def _conformance(c: Conformance) -> Section:
-    rows = tuple((i.name, i.where, _f(i.value_um), _f(i.expanded_uncertainty_um),
-                  _f(i.value_um + i.expanded_uncertainty_um),
-                  _f(i.value_um - i.expanded_uncertainty_um), i.verdict) for i in c.items)
-    return Section("Conformance (ISO 14253-1)", (
-        Paragraph(f"Decision: the machine {c.verdict} — {c.description}, tolerance "
-                  f"T = {_f(c.tolerance_um)} µm.", "verdict"),
-        Paragraph("Rule (ISO 14253-1, upper limit): conformance is proven when y + U ≤ T, "
-                  "non-conformance when y − U > T; between the two the uncertainty range allows "
-                  "no decision. " + c.uncertainty_statement + "."),
-        Table(("item", "where", "y µm", "U µm", "y + U", "y − U", "decision"), rows,
-              "llrrrrl"),
-    ))
+    rows = tuple(
+        (
+            i.name,
+            i.where,
+            _f(i.value_um),
+            _f(i.expanded_uncertainty_um),
+            _f(i.value_um + i.expanded_uncertainty_um),
+            _f(i.value_um - i.expanded_uncertainty_um),
+            i.verdict,
+        )
+        for i in c.items
+    )
+    return Section(
+        "Conformance (ISO 14253-1)",
+        (
+            Paragraph(
+                f"Decision: the machine {c.verdict} — {c.description}, tolerance "
+                f"T = {_f(c.tolerance_um)} µm.",
+                "verdict",
+            ),
+            Paragraph(
+                "Rule (ISO 14253-1, upper limit): conformance is proven when y + U ≤ T, "
+                "non-conformance when y − U > T; between the two the uncertainty range allows "
+                "no decision. " + c.uncertainty_statement + "."
+            ),
+            Table(("item", "where", "y µm", "U µm", "y + U", "y − U", "decision"), rows, "llrrrrl"),
+        ),
+    )
 
 
 # --------------------------------------------------------------------------------------------

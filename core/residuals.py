@@ -74,6 +74,7 @@ from .progress import CancelToken, ProgressCallback, check, report
 from .readings import Readings, flatten
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 EffectKey = tuple[str, str | None, str]
 
 
@@ -227,6 +228,23 @@ class LoopResult:
             )
         return out
 
+    def _cv_report(self) -> dict[str, object]:
+        """Cross-validated RMS (µm, displacement lines) before and after the loop, over the
+        readings the loop compares: held out in blocks, those the base model predicts (wild
+        extrapolations are counted, not averaged in)."""
+        before, after, wild = _compared(self.cv_before, self.cv_after, self.base, um=True)
+        judged = _compared(self.cv_before, self.cv_after, self.base)
+        out: dict[str, object] = {
+            "before_loop": before,
+            "after_loop": after,
+            "method": self.cv_after.method,
+            # what the loop judges by: every line, angular readings on the displacement scale
+            "all_lines": {"before_loop": judged[0], "after_loop": judged[1]},
+        }
+        if self.cv_after.method.startswith("held-out blocks"):
+            out["blocks_left_out"] = wild
+        return out
+
     def to_report(self) -> dict[str, object]:
         """The ``loop``, ``effects``, ``residual_rms_um``, ``cv_rms_um`` and ``unexplained``
         blocks of report.json (DESIGN.md)."""
@@ -262,11 +280,7 @@ class LoopResult:
                 "before_loop": residual_rms(self.base)[1],
                 "after_loop": residual_rms(self.final)[1],
             },
-            "cv_rms_um": {
-                "before_loop": self.cv_before.rms_um,
-                "after_loop": self.cv_after.rms_um,
-                "method": self.cv_after.method,
-            },
+            "cv_rms_um": self._cv_report(),
             "unexplained": [
                 {
                     "where": u.where,
@@ -999,7 +1013,11 @@ def unexplained(
     from scipy import special
 
     readings = identification.readings
-    held_out = identification.residual if cross_validation is None else cross_validation.residual
+    held_out = identification.residual
+    if cross_validation is not None:
+        # sized by the held-out residual where it is a prediction, by the fit's elsewhere
+        predicted, _ = _predicted(cross_validation, identification)
+        held_out = np.where(predicted, cross_validation.residual, held_out)
     out = []
     reported = set()
     count = len(readings.lines)
@@ -1205,8 +1223,35 @@ def _time_p_value(readings: Readings, residual: FloatArray, index: int, sigma: f
 # --------------------------------------------------------------------------------------------
 
 
-def _metric(cv: CrossValidation) -> float:
-    return cv.rms_um if np.isfinite(cv.rms_um) else cv.rms_urad
+def _exchange(readings: Readings) -> FloatArray:
+    """Per reading, the factor that puts its residual on the displacement lines' scale: 1 for a
+    displacement reading; for an angular one, the displacement lines' median repeatability over
+    the angular lines' (1 where the plan has one quantity only). The loop's comparisons weigh a
+    µrad on an angular line as the µm its noise is worth: what a drift or a surface settles on
+    the angular lines counts as well as what it settles on the displacement lines."""
+    angular = readings.is_angular
+    out = np.ones(len(readings))
+    if angular.any() and (~angular).any():
+        out[angular] = np.median(readings.sigma[~angular]) / np.median(readings.sigma[angular])
+    return out
+
+
+def _rms(residual: FloatArray, readings: Readings, rows: NDArray[np.bool_]) -> float:
+    """RMS of ``residual`` over ``rows``, angular readings on the displacement scale."""
+    scaled = residual[rows] * _exchange(readings)[rows]
+    return float(np.sqrt(np.mean(scaled**2))) if scaled.size else float("nan")
+
+
+def _metric(cv: CrossValidation, readings: Readings) -> float:
+    """The loop's cross-validated error: RMS over every reading held out, in displacement units
+    (µm, or µrad for a plan of angular lines only)."""
+    return _rms(cv.residual, readings, np.isfinite(cv.residual))
+
+
+def _fit_metric(identification: Identification) -> float:
+    """:func:`_metric` of the fit's own residual."""
+    residual = identification.residual
+    return _rms(residual, identification.readings, np.isfinite(residual))
 
 
 #: A held-out block whose cross-validated mean square exceeds this many times what the fit leaves
@@ -1216,37 +1261,46 @@ def _metric(cv: CrossValidation) -> float:
 WILD_BLOCK_FACTOR = 25.0
 
 
-def _compared(
-    reference: CrossValidation, other: CrossValidation, fit: Identification
-) -> tuple[float, float, int]:
-    """The cross-validated RMS of two fits on the same held-out readings, and how many held-out
-    blocks were left out of the comparison as wild (:data:`WILD_BLOCK_FACTOR`, judged on the
-    reference fit ``fit`` and its cross-validation only: a block a candidate makes wild still
-    counts against it). Leaving one line out has no such blocks: its RMS is compared whole."""
+def _predicted(reference: CrossValidation, fit: Identification) -> tuple[NDArray[np.bool_], int]:
+    """Per reading, whether its cross-validated residual is a prediction, and how many held-out
+    blocks are not. Leaving one line out predicts every reading. Held out in blocks, a line's
+    end targets never are, and a block whose cross-validated mean square exceeds
+    :data:`WILD_BLOCK_FACTOR` times what the fit ``fit`` leaves there in-sample (or the median
+    block's of its quantity, if more) is a wild extrapolation (judged on ``fit`` and its
+    cross-validation ``reference``)."""
+    out = np.isfinite(reference.residual)
     if not reference.method.startswith("held-out blocks"):
-        return _metric(reference), _metric(other), 0
+        return out, 0
     readings = fit.readings
+    wild = 0
     angular = readings.is_angular
-    rows = ~angular if np.any(~angular) else angular
-    block = readings.line[rows] * 1_000_000 + np.floor(readings.target_mm[rows] / BLOCK_MM)
-    _, group = np.unique(block, return_inverse=True)
-    count = np.bincount(group).astype(float)
-    ss_ref = np.bincount(group, reference.residual[rows] ** 2)
-    ss_other = np.bincount(group, other.residual[rows] ** 2)
-    in_sample = np.bincount(group, fit.residual[rows] ** 2) / count
-    floor = np.maximum(in_sample, float(np.median(in_sample)))
-    tame = ss_ref / count <= WILD_BLOCK_FACTOR * floor
-    n = float(count[tame].sum())
-    return (
-        float(np.sqrt(ss_ref[tame].sum() / n)),
-        float(np.sqrt(ss_other[tame].sum() / n)),
-        int(np.count_nonzero(~tame)),
-    )
+    for quantity in (~angular, angular):
+        rows = np.flatnonzero(quantity & out)
+        if rows.size == 0:
+            continue
+        block = readings.line[rows] * 1_000_000 + np.floor(readings.target_mm[rows] / BLOCK_MM)
+        _, group = np.unique(block, return_inverse=True)
+        count = np.bincount(group).astype(float)
+        held = np.bincount(group, reference.residual[rows] ** 2) / count
+        in_sample = np.bincount(group, fit.residual[rows] ** 2) / count
+        tame = held <= WILD_BLOCK_FACTOR * np.maximum(in_sample, float(np.median(in_sample)))
+        out[rows] = tame[group]
+        wild += int(np.count_nonzero(~tame))
+    return out, wild
 
 
-def _fit_metric(identification: Identification) -> float:
-    um, urad = residual_rms(identification)
-    return um if np.isfinite(um) else urad
+def _compared(
+    reference: CrossValidation, other: CrossValidation, fit: Identification, um: bool = False
+) -> tuple[float, float, int]:
+    """The cross-validated error of two fits over the same predicted readings (:func:`_predicted`,
+    judged on the reference fit ``fit`` only: a block a candidate makes wild still counts
+    against it), and how many held-out blocks were left out as wild. With ``um``, over the
+    displacement readings alone (µm, as report.json states it)."""
+    readings = fit.readings
+    rows, wild = _predicted(reference, fit)
+    if um:
+        rows &= ~readings.is_angular
+    return _rms(reference.residual, readings, rows), _rms(other.residual, readings, rows), wild
 
 
 @dataclass(frozen=True, eq=False)
@@ -1261,7 +1315,7 @@ class _Trial:
 
     @property
     def score(self) -> float:
-        return _metric(self.cv)
+        return _metric(self.cv, self.refit.readings)
 
 
 class _Fitter:
@@ -1697,12 +1751,13 @@ def _refine(
             continue
         trial_kept = [better if e is effect else e for e in kept]
         refit, cv_new = fit(trial_kept, current.model)
-        if not _metric(cv_new) < _metric(cv):
+        before, after, _ = _compared(cv, cv_new, current)
+        if not after < before:
             continue
         reason = (
             f"{effect.label} estimated again with the other kept effects in the model: "
             f"{_searched_value(effect)} → {_searched_value(better)}; cross-validated RMS "
-            f"{_metric(cv):.4g} → {_metric(cv_new):.4g}"
+            f"{before:.4g} → {after:.4g}"
         )
         steps.append(
             _later_step(
@@ -1899,8 +1954,7 @@ def _step(
         reason,
         residual_rms(current)[0],
         residual_rms(trial.refit)[0],
-        cv.rms_um,
-        trial.cv.rms_um,
+        *_compared(cv, trial.cv, current, um=True)[:2],
         trial.parameters,
         group_rms(current),
         group_rms(trial.refit),

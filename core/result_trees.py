@@ -99,8 +99,13 @@ def effect_to_json(effect: Effect) -> dict[str, Any]:
         if isinstance(value, Machine) or value is None and item.name == "machine":
             continue
         values[item.name] = json_safe(value)
-    return {"class": type(effect).__name__, "fields": values, "label": effect.label,
-            "kind": effect.kind, "axis": effect.axis}
+    return {
+        "class": type(effect).__name__,
+        "fields": values,
+        "label": effect.label,
+        "kind": effect.kind,
+        "axis": effect.axis,
+    }
 
 
 def effect_from_json(entry: Mapping[str, Any], measurement: Measurement) -> Effect:
@@ -122,8 +127,10 @@ def effect_from_json(entry: Mapping[str, Any], measurement: Measurement) -> Effe
     if "line_name" in kwargs:
         names = [line.name for line in measurement.lines]
         if kwargs["line_name"] not in names:
-            raise UserError(f"effect {entry.get('label')!r} refers to line "
-                            f"{kwargs['line_name']!r}, which the project no longer has")
+            raise UserError(
+                f"effect {entry.get('label')!r} refers to line "
+                f"{kwargs['line_name']!r}, which the project no longer has"
+            )
         kwargs["line"] = names.index(kwargs["line_name"])
     return cls(**kwargs)
 
@@ -160,8 +167,19 @@ class ReadingTable:
     residual: FloatArray
     quantity: IntArray
 
-    _ARRAYS = ("line", "run", "target", "position_mm", "target_mm", "approach", "time_s",
-               "material_temp_c", "value", "residual", "quantity")
+    _ARRAYS = (
+        "line",
+        "run",
+        "target",
+        "position_mm",
+        "target_mm",
+        "approach",
+        "time_s",
+        "material_temp_c",
+        "value",
+        "residual",
+        "quantity",
+    )
 
     @classmethod
     def from_identification(cls, identification: Identification) -> ReadingTable:
@@ -170,8 +188,13 @@ class ReadingTable:
             line_names=tuple(r.line_names),
             group=tuple(line_group(r, i) for i in range(len(r.lines))),
             direction=np.array([line.spec.direction for line in r.lines], dtype=float),
-            projection=np.array([line.spec.direction if line.spec.quantity == "linear" else
-                                 line.spec.sensitive for line in r.lines], dtype=float),
+            projection=np.array(
+                [
+                    line.spec.direction if line.spec.quantity == "linear" else line.spec.sensitive
+                    for line in r.lines
+                ],
+                dtype=float,
+            ),
             line=np.asarray(r.line, dtype=np.int64),
             run=np.asarray(r.run, dtype=np.int64),
             target=np.asarray(r.target, dtype=np.int64),
@@ -231,14 +254,16 @@ class ReadingTable:
         out = []
         for index, name in enumerate(self.line_names):
             values = self.residual[self.line == index]
-            out.append({
-                "line": name,
-                "group": self.group[index],
-                "unit": "urad" if self.group[index] == "angular" else "um",
-                "readings": int(values.size),
-                "rms": float(np.sqrt(np.mean(values**2))) if values.size else math.nan,
-                "max_abs": float(np.max(np.abs(values))) if values.size else math.nan,
-            })
+            out.append(
+                {
+                    "line": name,
+                    "group": self.group[index],
+                    "unit": "urad" if self.group[index] == "angular" else "um",
+                    "readings": int(values.size),
+                    "rms": float(np.sqrt(np.mean(values**2))) if values.size else math.nan,
+                    "max_abs": float(np.max(np.abs(values))) if values.size else math.nan,
+                }
+            )
         return out
 
 
@@ -267,8 +292,12 @@ def identification_result_tree(
 
 def effect_entries(identification: Identification) -> list[dict[str, Any]]:
     out = []
-    for effect, values, cov in zip(identification.effects, identification.effect_parameters,
-                                   identification.effect_covariances, strict=True):
+    for effect, values, cov in zip(
+        identification.effects,
+        identification.effect_parameters,
+        identification.effect_covariances,
+        strict=True,
+    ):
         if not isinstance(effect, Effect):
             continue
         entry = effect_to_json(effect)
@@ -279,8 +308,11 @@ def effect_entries(identification: Identification) -> list[dict[str, Any]]:
 
 def options_json(options: IdentifyOptions | None) -> dict[str, Any]:
     options = options or IdentifyOptions()
-    return {"spacing_mm": options.spacing_mm, "refine": options.refine,
-            "max_iterations": options.max_iterations}
+    return {
+        "spacing_mm": options.spacing_mm,
+        "refine": options.refine,
+        "max_iterations": options.max_iterations,
+    }
 
 
 def loop_candidates(loop: LoopResult) -> list[dict[str, Any]]:
@@ -289,15 +321,25 @@ def loop_candidates(loop: LoopResult) -> list[dict[str, Any]]:
     step_of = {s.finding.effect.label: s.step for s in loop.steps}
     for effect in loop.final.effects:
         if isinstance(effect, Effect):
-            out[effect.label] = {"effect": effect_to_json(effect), "label": effect.label,
-                                 "kind": effect.kind, "axis": effect.axis, "kept": True,
-                                 "step": step_of.get(effect.label)}
+            out[effect.label] = {
+                "effect": effect_to_json(effect),
+                "label": effect.label,
+                "kind": effect.kind,
+                "axis": effect.axis,
+                "kept": True,
+                "step": step_of.get(effect.label),
+            }
     for s in loop.steps:
         effect = s.finding.effect
         if effect.label not in out:
-            out[effect.label] = {"effect": effect_to_json(effect), "label": effect.label,
-                                 "kind": effect.kind, "axis": effect.axis, "kept": False,
-                                 "step": s.step}
+            out[effect.label] = {
+                "effect": effect_to_json(effect),
+                "label": effect.label,
+                "kind": effect.kind,
+                "axis": effect.axis,
+                "kept": False,
+                "step": s.step,
+            }
     return list(out.values())
 
 

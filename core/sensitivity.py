@@ -850,8 +850,10 @@ def analyse(
         "method": method,
         "chain": used_chain,
         "omega": design.omega,
-        "complementary_frequencies": [int(design.complementary.min(initial=0)),
-                                      int(design.complementary.max(initial=0))],
+        "complementary_frequencies": [
+            int(design.complementary.min(initial=0)),
+            int(design.complementary.max(initial=0)),
+        ],
         "runs_per_point": design.runs,
         "problem": problem.describe(),
     }
@@ -1017,16 +1019,16 @@ class _AffineErrors:
     def series(self) -> _LinearSeries:
         series = np.concatenate([self.offset[:, None, :], self.gain], axis=1)  # (component, 4, S)
         design = self.design
-        return _LinearSeries(
-            series.reshape(3, 4, design.repeats, design.factors, design.n), design
-        )
+        return _LinearSeries(series.reshape(3, 4, design.repeats, design.factors, design.n), design)
 
     @cached_property
     def square(self) -> FloatArray:
         series = np.concatenate([self.offset[:, None, :], self.gain], axis=1)
         return np.stack(
-            [(1.0 if a == b else 2.0) * np.einsum("cs,cs->s", series[:, a], series[:, b])
-             for a, b in _PAIRS]
+            [
+                (1.0 if a == b else 2.0) * np.einsum("cs,cs->s", series[:, a], series[:, b])
+                for a, b in _PAIRS
+            ]
         )
 
     def component_bins(
@@ -1159,9 +1161,7 @@ def analyse_model(
     problem = problem_from_model(
         model, covariance, positions, spread, floor_um, floor_urad, tool_offset_mm
     )
-    return analyse(
-        problem, output, n, m, seed, repeats, method, progress=progress, cancel=cancel
-    )
+    return analyse(problem, output, n, m, seed, repeats, method, progress=progress, cancel=cancel)
 
 
 # --------------------------------------------------------------------------------------------

@@ -118,8 +118,10 @@ class ThermalMeasurement:
             raise UserError(f"{where}: channel name(s) used twice: {', '.join(sorted(duplicate))}")
         for channel in self.errors:
             if channel.unit not in ERROR_UNITS:
-                raise UserError(f"{where}: error channel {channel.name!r} has unit "
-                                f"{channel.unit!r}; volucal keeps errors in µm or µrad")
+                raise UserError(
+                    f"{where}: error channel {channel.name!r} has unit "
+                    f"{channel.unit!r}; volucal keeps errors in µm or µrad"
+                )
             _check_series(where, channel.name, channel.values, time.size)
         for temperature in self.temperatures:
             _check_series(where, temperature.name, temperature.values_c, time.size)
@@ -146,14 +148,18 @@ class ThermalMeasurement:
         """The error channel ``name`` (the only one when None)."""
         if name is None:
             if len(self.errors) > 1:
-                raise UserError(f"{self.name}: several error channels "
-                                f"({', '.join(c.name for c in self.errors)}); name one")
+                raise UserError(
+                    f"{self.name}: several error channels "
+                    f"({', '.join(c.name for c in self.errors)}); name one"
+                )
             return self.errors[0]
         for channel in self.errors:
             if channel.name == name:
                 return channel
-        raise UserError(f"{self.name}: no error channel {name!r}; the record has "
-                        f"{', '.join(repr(c.name) for c in self.errors)}")
+        raise UserError(
+            f"{self.name}: no error channel {name!r}; the record has "
+            f"{', '.join(repr(c.name) for c in self.errors)}"
+        )
 
     def temperature_map(self) -> dict[str, FloatArray]:
         """Sensor name → values in °C (usable sensors only)."""
@@ -166,8 +172,9 @@ class ThermalMeasurement:
         chosen = list(table) if names is None else list(names)
         missing = [n for n in chosen if n not in table]
         if missing:
-            raise UserError(f"{self.name}: no usable temperature channel "
-                            f"{', '.join(repr(n) for n in missing)}")
+            raise UserError(
+                f"{self.name}: no usable temperature channel {', '.join(repr(n) for n in missing)}"
+            )
         if not chosen:
             return np.empty((self.samples, 0))
         return np.column_stack([table[n] for n in chosen])
@@ -179,8 +186,10 @@ def _check_series(where: object, name: str, values: FloatArray, count: int) -> N
         raise UserError(f"{where}: channel {name!r} has {array.size} values for {count} samples")
     bad = np.flatnonzero(~np.isfinite(array))
     if bad.size:
-        raise UserError(f"{where}: channel {name!r} has no value at sample {bad[0] + 1} (NaN or "
-                        "a gap); fill the gap or leave the channel out")
+        raise UserError(
+            f"{where}: channel {name!r} has no value at sample {bad[0] + 1} (NaN or "
+            "a gap); fill the gap or leave the channel out"
+        )
 
 
 def split_stuck_sensors(
@@ -193,11 +202,13 @@ def split_stuck_sensors(
         values = np.asarray(channel.values_c, dtype=float)
         span = float(np.ptp(values)) if values.size else 0.0
         if span <= span_c:
-            excluded.append(ExcludedSensor(
-                channel.name,
-                f"temperature {channel.name!r} is stuck at {values[0]:g} °C for the whole record "
-                "(a sensor that does not read); it is left out of the model",
-            ))
+            excluded.append(
+                ExcludedSensor(
+                    channel.name,
+                    f"temperature {channel.name!r} is stuck at {values[0]:g} °C for the whole record "
+                    "(a sensor that does not read); it is left out of the model",
+                )
+            )
         else:
             usable.append(channel)
     return tuple(usable), tuple(excluded)
@@ -228,10 +239,13 @@ def thermal_measurement(
     """A measurement from arrays (already in µm or µrad and °C); stuck sensors are excluded with
     a warning, as on import. For tests, simulations and scripts."""
     time = np.asarray(time_s, dtype=float)
-    channels = tuple(ErrorChannel(n, error_unit, np.asarray(v, dtype=float), error_unit)
-                     for n, v in errors.items())
-    temps = tuple(TemperatureChannel(n, np.asarray(v, dtype=float))
-                  for n, v in temperatures_c.items())
+    channels = tuple(
+        ErrorChannel(n, error_unit, np.asarray(v, dtype=float), error_unit)
+        for n, v in errors.items()
+    )
+    temps = tuple(
+        TemperatureChannel(n, np.asarray(v, dtype=float)) for n, v in temperatures_c.items()
+    )
     usable, excluded = split_stuck_sensors(temps)
     warnings = tuple(e.reason for e in excluded) + tuple(time_gaps(time)) if time.size > 1 else ()
     return ThermalMeasurement(

@@ -175,7 +175,7 @@ class ThermalFitResult:
             "channel": self.channel,
             "unit": self.unit,
             "sign_convention": "error = measured − nominal (as in the file, after its sign); "
-                               "a compensation applies −error",
+            "a compensation applies −error",
             "model": self.model.to_json(),
             "sensors": list(self.model.sensors),
             "dynamic": self.model.dynamic,
@@ -190,16 +190,34 @@ class ThermalFitResult:
             f"test_rms_{self.unit}": self.test_rms,
             f"test_max_abs_{self.unit}": self.test_max_abs,
             f"uncompensated_test_rms_{self.unit}": self.uncompensated_test_rms,
-            "subsets": [{"size": len(s.sensors), "sensors": list(s.sensors),
-                         f"cv_rms_{self.unit}": s.cv_rms} for s in self.subsets],
+            "subsets": [
+                {
+                    "size": len(s.sensors),
+                    "sensors": list(s.sensors),
+                    f"cv_rms_{self.unit}": s.cv_rms,
+                }
+                for s in self.subsets
+            ],
             "decisions": list(self.decisions),
-            "weights": [{"term": t.label(), "sensor": t.sensor, "coefficient": float(c),
-                         f"spread_{self.unit}": w}
-                        for t, c, w in zip(self.model.terms, self.model.coefficients,
-                                           self.term_spread, strict=True)],
+            "weights": [
+                {
+                    "term": t.label(),
+                    "sensor": t.sensor,
+                    "coefficient": float(c),
+                    f"spread_{self.unit}": w,
+                }
+                for t, c, w in zip(
+                    self.model.terms, self.model.coefficients, self.term_spread, strict=True
+                )
+            ],
             "baselines": [
-                {"name": b.name, "sensors": list(b.sensors), f"train_rms_{self.unit}": b.train_rms,
-                 f"cv_rms_{self.unit}": b.cv_rms, f"test_rms_{self.unit}": b.test_rms}
+                {
+                    "name": b.name,
+                    "sensors": list(b.sensors),
+                    f"train_rms_{self.unit}": b.train_rms,
+                    f"cv_rms_{self.unit}": b.cv_rms,
+                    f"test_rms_{self.unit}": b.test_rms,
+                }
                 for b in self.baselines
             ],
             "outliers": [f.to_json() for f in self.outliers],
@@ -221,8 +239,9 @@ class ThermalFitResult:
 # --------------------------------------------------------------------------------------------
 
 
-def rolling_origin_folds(samples: int, blocks: int = 10, initial_fraction: float = 0.5
-                         ) -> list[tuple[IntArray, IntArray]]:
+def rolling_origin_folds(
+    samples: int, blocks: int = 10, initial_fraction: float = 0.5
+) -> list[tuple[IntArray, IntArray]]:
     """(fit rows, validation rows) per fold: contiguous blocks, each predicted from all the rows
     before it, for the blocks that start at or after ``initial_fraction`` of the samples."""
     edges = np.linspace(0, samples, blocks + 1).round().astype(np.int64)
@@ -238,8 +257,9 @@ class _Scorer:
     """Cross-validated RMS of linear models on the training rows, from per-fold Gram matrices
     (so that thousands of sensor subsets cost little)."""
 
-    def __init__(self, features: FloatArray, y: FloatArray,
-                 folds: list[tuple[IntArray, IntArray]]) -> None:
+    def __init__(
+        self, features: FloatArray, y: FloatArray, folds: list[tuple[IntArray, IntArray]]
+    ) -> None:
         self.mean = features.mean(axis=0)
         scale = features.std(axis=0)
         self.scale = np.where(scale > 0, scale, 1.0)
@@ -265,8 +285,11 @@ class _Scorer:
             b = self.fit_rhs[k][index]
             c = np.linalg.solve(a, b[..., None])[..., 0]
             gv = self.val_gram[k][index[:, :, None], index[:, None, :]]
-            sse += (self.val_yy[k] - 2 * np.einsum("ij,ij->i", c, self.val_rhs[k][index])
-                    + np.einsum("ij,ijk,ik->i", c, gv, c))
+            sse += (
+                self.val_yy[k]
+                - 2 * np.einsum("ij,ij->i", c, self.val_rhs[k][index])
+                + np.einsum("ij,ijk,ik->i", c, gv, c)
+            )
         return np.sqrt(np.maximum(sse, 0.0) / self.count)
 
 
@@ -284,8 +307,13 @@ def cv_rms(features: FloatArray, y: FloatArray, folds: list[tuple[IntArray, IntA
 # --------------------------------------------------------------------------------------------
 
 
-def best_subsets(scorer: _Scorer, candidates: int, max_size: int, exhaustive_limit: int,
-                 cancel: CancelToken | None = None) -> list[tuple[tuple[int, ...], float]]:
+def best_subsets(
+    scorer: _Scorer,
+    candidates: int,
+    max_size: int,
+    exhaustive_limit: int,
+    cancel: CancelToken | None = None,
+) -> list[tuple[tuple[int, ...], float]]:
     """The best subset of each size 1…max_size and its CV RMS."""
     sizes = range(1, min(max_size, candidates) + 1)
     total = sum(math.comb(candidates, k) for k in sizes)
@@ -294,8 +322,12 @@ def best_subsets(scorer: _Scorer, candidates: int, max_size: int, exhaustive_lim
         for k in sizes:
             check(cancel)
             subsets = np.array(list(combinations(range(candidates), k)), dtype=np.int64)
-            scores = np.concatenate([scorer.rms(chunk) for chunk in
-                                     np.array_split(subsets, max(1, len(subsets) // 4000))])
+            scores = np.concatenate(
+                [
+                    scorer.rms(chunk)
+                    for chunk in np.array_split(subsets, max(1, len(subsets) // 4000))
+                ]
+            )
             top = int(np.argmin(scores))
             out.append((tuple(int(i) for i in subsets[top]), float(scores[top])))
         return out
@@ -314,8 +346,9 @@ def best_subsets(scorer: _Scorer, candidates: int, max_size: int, exhaustive_lim
                 rest = [i for i in range(candidates) if i not in chosen]
                 if not rest:
                     break
-                trial = np.array([chosen[:position] + [i] + chosen[position + 1:] for i in rest],
-                                 dtype=np.int64)
+                trial = np.array(
+                    [chosen[:position] + [i] + chosen[position + 1 :] for i in rest], dtype=np.int64
+                )
                 scores = scorer.rms(trial)
                 if scores.min() < best * (1 - 1e-9):
                     best = float(scores.min())
@@ -325,8 +358,9 @@ def best_subsets(scorer: _Scorer, candidates: int, max_size: int, exhaustive_lim
     return out
 
 
-def default_time_constants(time_s: FloatArray, train_rows: int, steps: int = 12) -> tuple[
-        float, ...]:
+def default_time_constants(
+    time_s: FloatArray, train_rows: int, steps: int = 12
+) -> tuple[float, ...]:
     """A log grid from two sample intervals to a tenth of the training span: a time constant is
     identified from a record several times longer than itself (10 τ here), a longer one only
     reshapes the slow trend of the training part and extrapolates badly."""
@@ -339,8 +373,9 @@ def default_time_constants(time_s: FloatArray, train_rows: int, steps: int = 12)
 class _Features:
     """Lagged and squared sensor columns on demand, cached."""
 
-    def __init__(self, time_s: FloatArray, temperatures: dict[str, FloatArray],
-                 train: slice) -> None:
+    def __init__(
+        self, time_s: FloatArray, temperatures: dict[str, FloatArray], train: slice
+    ) -> None:
         self.time_s = time_s
         self.temperatures = temperatures
         self.train = train
@@ -375,9 +410,11 @@ def fit_thermal(
     n = measurement.samples
     train_n = n if options.train_fraction >= 1 else int(round(options.train_fraction * n))
     if train_n < MIN_TRAINING_SAMPLES:
-        raise UserError(f"{measurement.name}: {train_n} training samples are too few to choose a "
-                        f"model (at least {MIN_TRAINING_SAMPLES}); use a longer record or a larger "
-                        "training fraction")
+        raise UserError(
+            f"{measurement.name}: {train_n} training samples are too few to choose a "
+            f"model (at least {MIN_TRAINING_SAMPLES}); use a longer record or a larger "
+            "training fraction"
+        )
     train = slice(0, train_n)
     test = slice(train_n, n)
     temperatures = measurement.temperature_map()
@@ -386,20 +423,27 @@ def fit_thermal(
     if unknown:
         excluded = {e.name for e in measurement.excluded}
         why = [f"{s!r} (excluded: stuck)" if s in excluded else repr(s) for s in unknown]
-        raise UserError(f"{measurement.name}: no usable temperature sensor {', '.join(why)}; "
-                        f"usable: {', '.join(temperatures) or 'none'}")
+        raise UserError(
+            f"{measurement.name}: no usable temperature sensor {', '.join(why)}; "
+            f"usable: {', '.join(temperatures) or 'none'}"
+        )
     if not sensors:
-        raise UserError(f"{measurement.name}: no usable temperature sensor to model "
-                        f"{channel.name!r} with")
+        raise UserError(
+            f"{measurement.name}: no usable temperature sensor to model {channel.name!r} with"
+        )
     folds = rolling_origin_folds(train_n, options.blocks, options.initial_fraction)
     if not folds or min(f.size for f, _ in folds) <= options.max_sensors + 2:
-        raise UserError(f"{measurement.name}: the training part ({train_n} samples) is too short "
-                        f"for {options.blocks}-block cross-validation with up to "
-                        f"{options.max_sensors} sensors")
+        raise UserError(
+            f"{measurement.name}: the training part ({train_n} samples) is too short "
+            f"for {options.blocks}-block cross-validation with up to "
+            f"{options.max_sensors} sensors"
+        )
     first_val = int(folds[0][1][0])
-    cv_text = (f"rolling origin over the training part: {options.blocks} contiguous blocks, each "
-               f"of the last {len(folds)} predicted from all samples before it (validation from "
-               f"sample {first_val + 1} of {train_n}); never random rows")
+    cv_text = (
+        f"rolling origin over the training part: {options.blocks} contiguous blocks, each "
+        f"of the last {len(folds)} predicted from all samples before it (validation from "
+        f"sample {first_val + 1} of {train_n}); never random rows"
+    )
     features = _Features(measurement.time_s, temperatures, train)
     y_train = y[train]
     decisions: list[str] = []
@@ -410,15 +454,17 @@ def fit_thermal(
     report(progress, 0.05, "choosing sensors")
     static = np.column_stack([temperatures[s][train] for s in sensors])
     scorer = _Scorer(static, y_train, folds)
-    ranked = best_subsets(scorer, len(sensors), options.max_sensors, options.exhaustive_limit,
-                          cancel)
+    ranked = best_subsets(
+        scorer, len(sensors), options.max_sensors, options.exhaustive_limit, cancel
+    )
     subsets = tuple(SubsetScore(tuple(sensors[i] for i in idx), score) for idx, score in ranked)
     best_score = min(s.cv_rms for s in subsets)
     chosen = next(s for s in subsets if s.cv_rms <= best_score * (1 + options.min_improvement))
     decisions.append(
         f"sensors: {len(chosen.sensors)} ({', '.join(chosen.sensors)}), CV RMS "
         f"{chosen.cv_rms:.3f} {sym}; the best of each size: "
-        + ", ".join(f"{len(s.sensors)}: {s.cv_rms:.3f}" for s in subsets))
+        + ", ".join(f"{len(s.sensors)}: {s.cv_rms:.3f}" for s in subsets)
+    )
     terms = [ThermalTerm(s) for s in chosen.sensors]
     static_cv = chosen.cv_rms
     current = static_cv
@@ -434,12 +480,14 @@ def fit_thermal(
         if lagged_cv <= current * (1 - options.min_improvement):
             decisions.append(
                 f"lags: kept ({', '.join(t.label() for t in lagged_terms if t.dynamic)}), CV RMS "
-                f"{current:.3f} → {lagged_cv:.3f} {sym}")
+                f"{current:.3f} → {lagged_cv:.3f} {sym}"
+            )
             terms, current = lagged_terms, lagged_cv
         else:
             decisions.append(
                 f"lags: not kept, the static model leaves no lag they remove (best CV RMS "
-                f"{lagged_cv:.3f} {sym} against {current:.3f} {sym} static)")
+                f"{lagged_cv:.3f} {sym} against {current:.3f} {sym} static)"
+            )
 
     # parsimony: a term whose removal costs less than min_improvement goes (the static sensor
     # choice may have taken an extra sensor to stand in for a lag the lags now model)
@@ -447,13 +495,15 @@ def fit_thermal(
         best_cv = current
         while len(terms) > 1:
             check(cancel)
-            trials = [(score(terms[:i] + terms[i + 1:]), i) for i in range(len(terms))]
+            trials = [(score(terms[:i] + terms[i + 1 :]), i) for i in range(len(terms))]
             value, index = min(trials)
             if value > best_cv * (1 + options.min_improvement):
                 break
-            decisions.append(f"term {terms[index].label()}: removed, CV RMS {current:.3f} → "
-                             f"{value:.3f} {sym} without it")
-            terms = terms[:index] + terms[index + 1:]
+            decisions.append(
+                f"term {terms[index].label()}: removed, CV RMS {current:.3f} → "
+                f"{value:.3f} {sym} without it"
+            )
+            terms = terms[:index] + terms[index + 1 :]
             current = value
             best_cv = min(best_cv, value)
 
@@ -467,27 +517,30 @@ def fit_thermal(
             trial = [*terms, ThermalTerm(sensor_term.sensor, sensor_term.tau_s, 2)]
             trial_cv = score(trial)
             if trial_cv <= current * (1 - options.min_improvement):
-                decisions.append(f"squared term {trial[-1].label()}: kept, CV RMS {current:.3f} "
-                                 f"→ {trial_cv:.3f} {sym}")
+                decisions.append(
+                    f"squared term {trial[-1].label()}: kept, CV RMS {current:.3f} "
+                    f"→ {trial_cv:.3f} {sym}"
+                )
                 terms, current = trial, trial_cv
         if not any(t.power == 2 for t in terms):
-            decisions.append("squared terms: none lowers the CV error by "
-                             f"{100 * options.min_improvement:g} %")
+            decisions.append(
+                f"squared terms: none lowers the CV error by {100 * options.min_improvement:g} %"
+            )
 
     report(progress, 0.9, "fitting and validating")
     time_s = measurement.time_s
     model = fit_model(channel.name, unit, time_s, y, temperatures, terms, train)
     design = model.design(time_s, temperatures)
     predicted = design @ np.concatenate([[model.intercept], model.coefficients])
-    spread = tuple(float(np.std(design[:, k + 1] * c)) for k, c in
-                   enumerate(model.coefficients))
+    spread = tuple(float(np.std(design[:, k + 1] * c)) for k, c in enumerate(model.coefficients))
     residual = y - predicted
     train_rms = _rms(residual[train])
     test_rms = _rms(residual[test]) if train_n < n else None
     test_max = float(np.max(np.abs(residual[test]))) if train_n < n else None
     uncompensated = _rms(y[test]) if train_n < n else None
-    baselines = _baselines(measurement, channel.name, y, sensors, train, test, folds, scorer,
-                           subsets, train_n < n)
+    baselines = _baselines(
+        measurement, channel.name, y, sensors, train, test, folds, scorer, subsets, train_n < n
+    )
     outliers = tuple(screen_series(time_s, y, name=channel.name, unit=unit))
     report(progress, 1.0, "done")
     return ThermalFitResult(
@@ -519,8 +572,9 @@ def fit_thermal(
     )
 
 
-def _search_lags(terms: list[ThermalTerm], grid: Sequence[float], score: Any,
-                 cancel: CancelToken | None) -> tuple[list[ThermalTerm], float]:
+def _search_lags(
+    terms: list[ThermalTerm], grid: Sequence[float], score: Any, cancel: CancelToken | None
+) -> tuple[list[ThermalTerm], float]:
     """Coordinate descent on each term's τ over {0} ∪ grid, twice round, then a continuous
     refinement of each non-zero τ in log τ between its grid neighbours."""
     taus = [0.0, *sorted(grid)]
@@ -533,7 +587,7 @@ def _search_lags(terms: list[ThermalTerm], grid: Sequence[float], score: Any,
             for tau in taus:
                 if tau == term.tau_s:
                     continue
-                trial = current[:i] + [ThermalTerm(term.sensor, tau)] + current[i + 1:]
+                trial = current[:i] + [ThermalTerm(term.sensor, tau)] + current[i + 1 :]
                 value = score(trial)
                 if value < best * (1 - 1e-6):
                     best, current, term, changed = value, trial, trial[i], True
@@ -551,39 +605,71 @@ def _search_lags(terms: list[ThermalTerm], grid: Sequence[float], score: Any,
             continue
 
         def objective(log_tau: float, i: int = i, base: list[ThermalTerm] = current) -> float:
-            trial = base[:i] + [ThermalTerm(base[i].sensor, math.exp(log_tau))] + base[i + 1:]
+            trial = base[:i] + [ThermalTerm(base[i].sensor, math.exp(log_tau))] + base[i + 1 :]
             return float(score(trial))
 
-        found = minimize_scalar(objective, bounds=(low, high), method="bounded",
-                                options={"xatol": 0.02})
+        found = minimize_scalar(
+            objective, bounds=(low, high), method="bounded", options={"xatol": 0.02}
+        )
         if found.fun < best:
             best = float(found.fun)
-            current = current[:i] + [ThermalTerm(term.sensor, float(math.exp(found.x)))] + \
-                current[i + 1:]
+            current = (
+                current[:i]
+                + [ThermalTerm(term.sensor, float(math.exp(found.x)))]
+                + current[i + 1 :]
+            )
     return current, best
 
 
-def _baselines(measurement: ThermalMeasurement, channel: str, y: FloatArray,
-               sensors: list[str], train: slice, test: slice,
-               folds: list[tuple[IntArray, IntArray]], scorer: _Scorer,
-               subsets: tuple[SubsetScore, ...], has_test: bool) -> tuple[Baseline, ...]:
+def _baselines(
+    measurement: ThermalMeasurement,
+    channel: str,
+    y: FloatArray,
+    sensors: list[str],
+    train: slice,
+    test: slice,
+    folds: list[tuple[IntArray, IntArray]],
+    scorer: _Scorer,
+    subsets: tuple[SubsetScore, ...],
+    has_test: bool,
+) -> tuple[Baseline, ...]:
     time_s = measurement.time_s
     temperatures = measurement.temperature_map()
-    out = [Baseline("uncompensated", (), _rms(y[train]), None,
-                    _rms(y[test]) if has_test else None)]
-    everything = fit_model(channel, "um", time_s, y, temperatures,
-                           [ThermalTerm(s) for s in sensors], train, covariance=False)
+    out = [Baseline("uncompensated", (), _rms(y[train]), None, _rms(y[test]) if has_test else None)]
+    everything = fit_model(
+        channel,
+        "um",
+        time_s,
+        y,
+        temperatures,
+        [ThermalTerm(s) for s in sensors],
+        train,
+        covariance=False,
+    )
     residual = y - everything.predict(time_s, temperatures)
-    out.append(Baseline("all sensors, static least squares", tuple(sensors),
-                        _rms(residual[train]),
-                        float(scorer.rms(np.arange(len(sensors))[None, :])[0]),
-                        _rms(residual[test]) if has_test else None))
+    out.append(
+        Baseline(
+            "all sensors, static least squares",
+            tuple(sensors),
+            _rms(residual[train]),
+            float(scorer.rms(np.arange(len(sensors))[None, :])[0]),
+            _rms(residual[test]) if has_test else None,
+        )
+    )
     single = subsets[0].sensors
-    one = fit_model(channel, "um", time_s, y, temperatures, [ThermalTerm(single[0])], train,
-                    covariance=False)
+    one = fit_model(
+        channel, "um", time_s, y, temperatures, [ThermalTerm(single[0])], train, covariance=False
+    )
     residual = y - one.predict(time_s, temperatures)
-    out.append(Baseline("best single sensor by cross-validation", single, _rms(residual[train]),
-                        subsets[0].cv_rms, _rms(residual[test]) if has_test else None))
+    out.append(
+        Baseline(
+            "best single sensor by cross-validation",
+            single,
+            _rms(residual[train]),
+            subsets[0].cv_rms,
+            _rms(residual[test]) if has_test else None,
+        )
+    )
     return tuple(out)
 
 

@@ -123,13 +123,21 @@ class ThermalTerm:
         return (self.lagged(time_s, temperature_c) - self.reference_c) ** self.power
 
     def to_json(self) -> dict[str, Any]:
-        return {"sensor": self.sensor, "tau_s": self.tau_s, "power": self.power,
-                "reference_c": self.reference_c}
+        return {
+            "sensor": self.sensor,
+            "tau_s": self.tau_s,
+            "power": self.power,
+            "reference_c": self.reference_c,
+        }
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> ThermalTerm:
-        return cls(str(data["sensor"]), float(data["tau_s"]), int(data["power"]),
-                   float(data["reference_c"]))
+        return cls(
+            str(data["sensor"]),
+            float(data["tau_s"]),
+            int(data["power"]),
+            float(data["reference_c"]),
+        )
 
 
 def _duration(seconds: float) -> str:
@@ -180,8 +188,10 @@ class ThermalModel:
         columns = [np.ones(time.size)]
         for term in self.terms:
             if term.sensor not in temperatures:
-                raise UserError(f"the model of {self.channel!r} reads sensor {term.sensor!r}, "
-                                "which the data do not have")
+                raise UserError(
+                    f"the model of {self.channel!r} reads sensor {term.sensor!r}, "
+                    "which the data do not have"
+                )
             columns.append(term.values(time, np.asarray(temperatures[term.sensor], float)))
         return np.column_stack(columns)
 
@@ -205,8 +215,11 @@ class ThermalModel:
         parts = [f"{self.intercept:.{digits}g}"]
         for term, c in zip(self.terms, self.coefficients, strict=True):
             sign = "−" if c < 0 else "+"
-            signal = term.sensor if not term.dynamic else (
-                f"F({term.sensor}, τ={_duration(term.tau_s)})")
+            signal = (
+                term.sensor
+                if not term.dynamic
+                else (f"F({term.sensor}, τ={_duration(term.tau_s)})")
+            )
             inner = f"({signal} − {term.reference_c:.{digits}g})"
             power = "²" if term.power == 2 else ""
             parts.append(f"{sign} {abs(c):.{digits}g}·{inner}{power}")
@@ -219,10 +232,14 @@ class ThermalModel:
             "intercept": self.intercept,
             "intercept_std": self.intercept_std,
             "terms": [
-                {**t.to_json(), "label": t.label(), "coefficient": float(c),
-                 "coefficient_std": float(s), "coefficient_unit": t.unit(self.unit)}
-                for t, c, s in zip(self.terms, self.coefficients, self.coefficient_std,
-                                   strict=True)
+                {
+                    **t.to_json(),
+                    "label": t.label(),
+                    "coefficient": float(c),
+                    "coefficient_std": float(s),
+                    "coefficient_unit": t.unit(self.unit),
+                }
+                for t, c, s in zip(self.terms, self.coefficients, self.coefficient_std, strict=True)
             ],
             "covariance": self.covariance.tolist(),
             "sensors": list(self.sensors),
@@ -239,7 +256,8 @@ class ThermalModel:
             terms=terms,
             coefficients=np.array([float(t["coefficient"]) for t in data["terms"]]),
             covariance=np.asarray(data["covariance"], dtype=float).reshape(
-                len(terms) + 1, len(terms) + 1),
+                len(terms) + 1, len(terms) + 1
+            ),
         )
 
 
@@ -257,10 +275,10 @@ def centred_terms(
     """The terms with each reference R set to the mean of its lagged sensor over ``rows``."""
     out = []
     for term in terms:
-        lagged = first_order_response(time_s, np.asarray(temperatures[term.sensor], float),
-                                      term.tau_s)
-        out.append(ThermalTerm(term.sensor, term.tau_s, term.power,
-                               float(np.mean(lagged[rows]))))
+        lagged = first_order_response(
+            time_s, np.asarray(temperatures[term.sensor], float), term.tau_s
+        )
+        out.append(ThermalTerm(term.sensor, term.tau_s, term.power, float(np.mean(lagged[rows]))))
     return tuple(out)
 
 
@@ -278,17 +296,23 @@ def fit_model(
     record from its first sample, as they would in the controller), Newey–West covariance
     (NaN when ``covariance`` is False: a baseline that only needs its predictions)."""
     centred = centred_terms(time_s, temperatures, terms, rows)
-    shell = ThermalModel(channel, unit, 0.0, centred, np.zeros(len(centred)),
-                         np.zeros((len(centred) + 1,) * 2))
+    shell = ThermalModel(
+        channel, unit, 0.0, centred, np.zeros(len(centred)), np.zeros((len(centred) + 1,) * 2)
+    )
     design = shell.design(time_s, temperatures)[rows]
     y = np.asarray(error, dtype=float)[rows]
     if design.shape[0] <= design.shape[1]:
-        raise UserError(f"{channel}: {design.shape[0]} samples cannot fit {design.shape[1]} "
-                        "parameters; use fewer sensors or more data")
+        raise UserError(
+            f"{channel}: {design.shape[0]} samples cannot fit {design.shape[1]} "
+            "parameters; use fewer sensors or more data"
+        )
     solution, *_ = np.linalg.lstsq(design, y, rcond=None)
     residual = y - design @ solution
-    cov = (newey_west_covariance(design, residual) if covariance
-           else np.full((design.shape[1],) * 2, np.nan))
+    cov = (
+        newey_west_covariance(design, residual)
+        if covariance
+        else np.full((design.shape[1],) * 2, np.nan)
+    )
     return ThermalModel(channel, unit, float(solution[0]), centred, solution[1:].copy(), cov)
 
 
@@ -303,8 +327,9 @@ def newey_west_bandwidth(residual: FloatArray) -> int:
     return int(min(n - 1, math.ceil(1.1447 * (alpha * n) ** (1 / 3))))
 
 
-def newey_west_covariance(design: FloatArray, residual: FloatArray,
-                          lags: int | None = None) -> FloatArray:
+def newey_west_covariance(
+    design: FloatArray, residual: FloatArray, lags: int | None = None
+) -> FloatArray:
     """(XᵀX)⁻¹ S (XᵀX)⁻¹ with S the Bartlett-weighted sum of the score autocovariances."""
     n, p = design.shape
     lag = newey_west_bandwidth(residual) if lags is None else lags
@@ -314,7 +339,7 @@ def newey_west_covariance(design: FloatArray, residual: FloatArray,
     spectrum = np.fft.rfft(score, size, axis=0)
     cross = np.fft.irfft(spectrum[:, :, None] * np.conj(spectrum[:, None, :]), size, axis=0)
     weights = 1.0 - np.arange(1, lag + 1) / (lag + 1.0)
-    gamma = np.tensordot(weights, cross[1:lag + 1], axes=(0, 0))
+    gamma = np.tensordot(weights, cross[1 : lag + 1], axes=(0, 0))
     s = cross[0] + gamma + gamma.T
     inverse = np.linalg.pinv(design.T @ design)
     return inverse @ s @ inverse * (n / max(n - p, 1))

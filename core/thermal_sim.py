@@ -31,10 +31,12 @@ class SimulatedThermalTest:
     hours: float = 24.0
     interval_s: float = 60.0
     intercept_um: float = 0.0
-    truth: Mapping[str, tuple[float, float]] = field(default_factory=lambda: {
-        "spindle": (2.0, 1800.0),
-        "column": (-1.2, 0.0),
-    })
+    truth: Mapping[str, tuple[float, float]] = field(
+        default_factory=lambda: {
+            "spindle": (2.0, 1800.0),
+            "column": (-1.2, 0.0),
+        }
+    )
     distractors: int = 4
     noise_um: float = 0.2
     noise_correlation: float = 0.9
@@ -43,8 +45,9 @@ class SimulatedThermalTest:
     seed: int = 1
 
 
-def simulate_thermal_test(settings: SimulatedThermalTest | None = None,
-                          name: str = "simulated") -> ThermalMeasurement:
+def simulate_thermal_test(
+    settings: SimulatedThermalTest | None = None, name: str = "simulated"
+) -> ThermalMeasurement:
     """The simulated record (module notes), error channel ``"Z drift"`` in µm."""
     s = settings or SimulatedThermalTest()
     rng = np.random.default_rng(s.seed)
@@ -64,8 +67,11 @@ def simulate_thermal_test(settings: SimulatedThermalTest | None = None,
     for k in range(s.distractors):
         lag = 600.0 * (k + 1)
         share = 0.3 + 0.15 * k
-        sources[f"T{k + 1}"] = room + 6.0 * share * first_order_response(time_s, power, lag) + \
-            0.3 * k * np.sin(2 * np.pi * hours / (5.0 + k))
+        sources[f"T{k + 1}"] = (
+            room
+            + 6.0 * share * first_order_response(time_s, power, lag)
+            + 0.3 * k * np.sin(2 * np.pi * hours / (5.0 + k))
+        )
     sources["room"] = room
     for sensor, values in sources.items():
         temperatures[sensor] = values + rng.normal(0.0, s.sensor_noise_c, time_s.size)

@@ -74,8 +74,9 @@ def jsonable(value: Any) -> Any:
     return value
 
 
-def thermal_tree(measurement: ThermalMeasurement,
-                 results: Sequence[ThermalFitResult] = ()) -> dict[str, Any]:
+def thermal_tree(
+    measurement: ThermalMeasurement, results: Sequence[ThermalFitResult] = ()
+) -> dict[str, Any]:
     """The result tree of a thermal record and its fitted models (module notes)."""
     m = measurement
     tree: dict[str, Any] = {
@@ -88,26 +89,40 @@ def thermal_tree(measurement: ThermalMeasurement,
         "start_time": m.start_time,
         "samples": m.samples,
         "time_s": np.asarray(m.time_s, dtype=float),
-        "errors": [{"name": c.name, "unit": c.unit, "raw_unit": c.raw_unit, "sign": c.sign,
-                    "values": np.asarray(c.values, dtype=float)} for c in m.errors],
+        "errors": [
+            {
+                "name": c.name,
+                "unit": c.unit,
+                "raw_unit": c.raw_unit,
+                "sign": c.sign,
+                "values": np.asarray(c.values, dtype=float),
+            }
+            for c in m.errors
+        ],
         "temperature_names": [t.name for t in m.temperatures],
         "temperatures_c": m.temperature_matrix(),
         "excluded": [{"name": e.name, "reason": e.reason} for e in m.excluded],
         "warnings": list(m.warnings),
         "source": np.frombuffer(m.source_bytes, dtype=np.uint8).copy(),
         "models": [
-            {"channel": r.channel,
-             "model_json": json.dumps(jsonable(r.model.to_json())),
-             "result_json": json.dumps(jsonable(r.to_json()), ensure_ascii=False),
-             "predicted": np.asarray(r.predicted, dtype=float)}
+            {
+                "channel": r.channel,
+                "model_json": json.dumps(jsonable(r.model.to_json())),
+                "result_json": json.dumps(jsonable(r.to_json()), ensure_ascii=False),
+                "predicted": np.asarray(r.predicted, dtype=float),
+            }
             for r in results
         ],
     }
     return tree
 
 
-def store_thermal(project: Project, name: str, measurement: ThermalMeasurement,
-                  results: Sequence[ThermalFitResult] = ()) -> str:
+def store_thermal(
+    project: Project,
+    name: str,
+    measurement: ThermalMeasurement,
+    results: Sequence[ThermalFitResult] = (),
+) -> str:
     """Put the record (and its models) in the project, replacing one of the same name; returns
     the group's path. The caller saves the project."""
     try:
@@ -127,12 +142,16 @@ def load_thermal(project: Project, name: str) -> StoredThermal:
     try:
         tree = project.result(KIND, name)
     except KeyError:
-        raise UserError(f"the project has no thermal record {name!r}; it has "
-                        f"{', '.join(thermal_names(project)) or 'none'}") from None
+        raise UserError(
+            f"the project has no thermal record {name!r}; it has "
+            f"{', '.join(thermal_names(project)) or 'none'}"
+        ) from None
     version = int(tree.get("format_version", 0))
     if version > FORMAT_VERSION:
-        raise UserError(f"thermal record {name!r} was written by a newer volucal (format "
-                        f"{version}); update volucal")
+        raise UserError(
+            f"thermal record {name!r} was written by a newer volucal (format "
+            f"{version}); update volucal"
+        )
     temperatures = np.asarray(tree["temperatures_c"], dtype=float)
     names = list(tree["temperature_names"])
     source = str(tree.get("source_file") or "")
@@ -140,13 +159,20 @@ def load_thermal(project: Project, name: str) -> StoredThermal:
     measurement = ThermalMeasurement(
         name=str(tree["name"]),
         time_s=np.asarray(tree["time_s"], dtype=float),
-        errors=tuple(ErrorChannel(str(e["name"]), str(e["unit"]),
-                                  np.asarray(e["values"], dtype=float), str(e["raw_unit"]),
-                                  int(e["sign"])) for e in tree["errors"]),
-        temperatures=tuple(TemperatureChannel(n, temperatures[:, k])
-                           for k, n in enumerate(names)),
-        excluded=tuple(ExcludedSensor(str(e["name"]), str(e["reason"]))
-                       for e in tree.get("excluded", [])),
+        errors=tuple(
+            ErrorChannel(
+                str(e["name"]),
+                str(e["unit"]),
+                np.asarray(e["values"], dtype=float),
+                str(e["raw_unit"]),
+                int(e["sign"]),
+            )
+            for e in tree["errors"]
+        ),
+        temperatures=tuple(TemperatureChannel(n, temperatures[:, k]) for k, n in enumerate(names)),
+        excluded=tuple(
+            ExcludedSensor(str(e["name"]), str(e["reason"])) for e in tree.get("excluded", [])
+        ),
         warnings=tuple(str(w) for w in tree.get("warnings", [])),
         time_source=str(tree.get("time_source", "")),
         start_time=None if start is None else float(start),
@@ -162,8 +188,9 @@ def load_thermal(project: Project, name: str) -> StoredThermal:
     return StoredThermal(measurement, models, results)
 
 
-def load_thermal_result(project: Project, name: str, channel: str | None = None
-                        ) -> ThermalFitResult:
+def load_thermal_result(
+    project: Project, name: str, channel: str | None = None
+) -> ThermalFitResult:
     """The fit of one channel (None: the first) of a stored record, as :func:`fit_thermal`
     returned it (for the workbench view and the report), without fitting again."""
     stored = load_thermal(project, name)
@@ -171,13 +198,15 @@ def load_thermal_result(project: Project, name: str, channel: str | None = None
         raise UserError(f"thermal record {name!r} has no fitted model")
     key = channel if channel is not None else next(iter(stored.results))
     if key not in stored.results:
-        raise UserError(f"thermal record {name!r} has no model of {key!r}; it has "
-                        f"{', '.join(stored.results)}")
+        raise UserError(
+            f"thermal record {name!r} has no model of {key!r}; it has {', '.join(stored.results)}"
+        )
     summary = stored.results[key]
     unit = str(summary["unit"])
     tree = project.result(KIND, name)
-    predicted = next(np.asarray(m["predicted"], dtype=float) for m in tree["models"]
-                     if str(m["channel"]) == key)
+    predicted = next(
+        np.asarray(m["predicted"], dtype=float) for m in tree["models"] if str(m["channel"]) == key
+    )
     saved = summary.get("options", {})
     options = ThermalFitOptions(
         train_fraction=float(summary["train_fraction"]),
@@ -208,19 +237,35 @@ def load_thermal_result(project: Project, name: str, channel: str | None = None
         test_max_abs=number(summary.get(f"test_max_abs_{unit}")),
         uncompensated_test_rms=number(summary.get(f"uncompensated_test_rms_{unit}")),
         static_cv_rms=float(summary[f"static_cv_rms_{unit}"]),
-        subsets=tuple(SubsetScore(tuple(s["sensors"]), float(s[f"cv_rms_{unit}"]))
-                      for s in summary["subsets"]),
+        subsets=tuple(
+            SubsetScore(tuple(s["sensors"]), float(s[f"cv_rms_{unit}"])) for s in summary["subsets"]
+        ),
         decisions=tuple(summary["decisions"]),
-        baselines=tuple(Baseline(str(b["name"]), tuple(b["sensors"]),
-                                 float(b[f"train_rms_{unit}"]), number(b[f"cv_rms_{unit}"]),
-                                 number(b[f"test_rms_{unit}"])) for b in summary["baselines"]),
+        baselines=tuple(
+            Baseline(
+                str(b["name"]),
+                tuple(b["sensors"]),
+                float(b[f"train_rms_{unit}"]),
+                number(b[f"cv_rms_{unit}"]),
+                number(b[f"test_rms_{unit}"]),
+            )
+            for b in summary["baselines"]
+        ),
         time_s=stored.measurement.time_s,
         measured=stored.measurement.error(key).values,
         predicted=predicted,
         term_spread=tuple(float(w[f"spread_{unit}"]) for w in summary.get("weights", [])),
-        outliers=tuple(SeriesFlag(str(f["channel"]), int(f["sample"]), float(f["time_s"]),
-                                  float(f["value"]), str(f["reason"]), float(f["statistic"]))
-                       for f in summary.get("outliers", [])),
+        outliers=tuple(
+            SeriesFlag(
+                str(f["channel"]),
+                int(f["sample"]),
+                float(f["time_s"]),
+                float(f["value"]),
+                str(f["reason"]),
+                float(f["statistic"]),
+            )
+            for f in summary.get("outliers", [])
+        ),
         warnings=tuple(summary.get("warnings", [])),
         elapsed_s=float(summary.get("elapsed_s", 0.0)),
     )

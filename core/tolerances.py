@@ -68,11 +68,14 @@ class Tolerances:
                 raise UserError(f"tolerance for axis {axis!r}: the axes are {', '.join(AXES)}")
             for key, value in limits.items():
                 if key not in QUANTITIES:
-                    raise UserError(f"tolerance {key!r} of axis {axis}: set limits on "
-                                    f"{', '.join(QUANTITIES)}")
+                    raise UserError(
+                        f"tolerance {key!r} of axis {axis}: set limits on {', '.join(QUANTITIES)}"
+                    )
                 if not (math.isfinite(float(value)) and float(value) > 0):
-                    raise UserError(f"tolerance {key} of axis {axis}: {value!r} µm; give a "
-                                    "positive number of micrometres")
+                    raise UserError(
+                        f"tolerance {key} of axis {axis}: {value!r} µm; give a "
+                        "positive number of micrometres"
+                    )
 
     @property
     def empty(self) -> bool:
@@ -83,13 +86,20 @@ class Tolerances:
         return None if value is None else float(value)
 
     def to_json(self) -> dict[str, dict[str, float]]:
-        return {a: {k: float(v) for k, v in limits.items()}
-                for a, limits in self.limits_um.items() if limits}
+        return {
+            a: {k: float(v) for k, v in limits.items()}
+            for a, limits in self.limits_um.items()
+            if limits
+        }
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> Tolerances:
-        return cls({str(a): {str(k): float(v) for k, v in dict(limits).items()}
-                    for a, limits in dict(data).items()})
+        return cls(
+            {
+                str(a): {str(k): float(v) for k, v in dict(limits).items()}
+                for a, limits in dict(data).items()
+            }
+        )
 
     # ---- the project -------------------------------------------------------------------------
 
@@ -132,10 +142,16 @@ class ToleranceCheck:
         return PASS if self.passed else FAIL
 
     def to_json(self) -> dict[str, Any]:
-        return {"line": self.line, "axis": self.axis, "quantity": self.quantity,
-                "value_um": self.value_um, "limit_um": self.limit_um,
-                "expanded_uncertainty_um": self.expanded_uncertainty_um,
-                "verdict": self.verdict, "iso_14253_1": self.decision}
+        return {
+            "line": self.line,
+            "axis": self.axis,
+            "quantity": self.quantity,
+            "value_um": self.value_um,
+            "limit_um": self.limit_um,
+            "expanded_uncertainty_um": self.expanded_uncertainty_um,
+            "verdict": self.verdict,
+            "iso_14253_1": self.decision,
+        }
 
 
 def iso_value(result: Iso230Result, quantity: str) -> float:
@@ -153,8 +169,12 @@ def expanded_uncertainty_um(line: Line, quantity: str, budget: UncertaintyBudget
     return COVERAGE_K * float(budget.positioning_std_um(np.array([travel]))[0])
 
 
-def check_line(line: Line, tolerances: Tolerances, budget: UncertaintyBudget,
-               result: Iso230Result | None = None) -> list[ToleranceCheck]:
+def check_line(
+    line: Line,
+    tolerances: Tolerances,
+    budget: UncertaintyBudget,
+    result: Iso230Result | None = None,
+) -> list[ToleranceCheck]:
     """Every limit of the line's axis against the line's ISO 230-2 values (none for a line
     that is not along one axis)."""
     axis = line_axis(line)
@@ -168,14 +188,24 @@ def check_line(line: Line, tolerances: Tolerances, budget: UncertaintyBudget,
             continue
         value = iso_value(result, quantity)
         u = expanded_uncertainty_um(line, quantity, budget)
-        out.append(ToleranceCheck(line.name, axis, quantity, value, limit, u,
-                                  bool(math.isfinite(value) and value <= limit),
-                                  decide(value, u, limit)))
+        out.append(
+            ToleranceCheck(
+                line.name,
+                axis,
+                quantity,
+                value,
+                limit,
+                u,
+                bool(math.isfinite(value) and value <= limit),
+                decide(value, u, limit),
+            )
+        )
     return out
 
 
-def check_lines(lines: Sequence[Line], tolerances: Tolerances, budget: UncertaintyBudget
-                ) -> list[ToleranceCheck]:
+def check_lines(
+    lines: Sequence[Line], tolerances: Tolerances, budget: UncertaintyBudget
+) -> list[ToleranceCheck]:
     """:func:`check_line` over ``lines`` (the linear axis-parallel ones)."""
     return [c for line in lines for c in check_line(line, tolerances, budget)]
 

@@ -36,7 +36,9 @@ def register(subparsers: Any) -> None:
         "--replace", action="store_true", help="replace lines the project already has"
     )
     parser.add_argument(
-        "--files-root", type=Path, metavar="DIR",
+        "--files-root",
+        type=Path,
+        metavar="DIR",
         help="let the plan read files under DIR (default: only the plan's own folder; a file "
         "outside it, through '..', an absolute path or a symbolic link, is refused)",
     )
@@ -55,8 +57,11 @@ def run(args: argparse.Namespace) -> int:
             result.source_bytes,
             result.raw,
             provenance={line.name: line.provenance() for line in result.lines},
-            captures={line.name: _capture_arrays(line) for line in result.lines
-                      if line.capture is not None},
+            captures={
+                line.name: _capture_arrays(line)
+                for line in result.lines
+                if line.capture is not None
+            },
             replace=args.replace,
         )
         project.save(args.project)
@@ -80,22 +85,24 @@ def summarise(result: ImportResult, project: Path, created: bool) -> dict[str, A
     """The command's output as a JSON-ready dict."""
     lines = []
     for line in result.lines:
-        lines.append({
-            "name": line.name,
-            "file": str(line.spec.file),
-            "format": line.format,
-            "quantity": line.spec.quantity,
-            "unit": line.spec.unit,
-            "runs": line.corrected.runs,
-            "targets": int(line.corrected.targets_mm.size),
-            "readings": line.readings,
-            "sign": line.spec.sign,
-            "sign_convention": line.sign_convention,
-            "env_corrected": line.spec.env_corrected,
-            "corrections": list(line.corrections),
-            "notes": list(line.notes),
-            "outliers": len(line.flags),
-        })
+        lines.append(
+            {
+                "name": line.name,
+                "file": str(line.spec.file),
+                "format": line.format,
+                "quantity": line.spec.quantity,
+                "unit": line.spec.unit,
+                "runs": line.corrected.runs,
+                "targets": int(line.corrected.targets_mm.size),
+                "readings": line.readings,
+                "sign": line.spec.sign,
+                "sign_convention": line.sign_convention,
+                "env_corrected": line.spec.env_corrected,
+                "corrections": list(line.corrections),
+                "notes": list(line.notes),
+                "outliers": len(line.flags),
+            }
+        )
     return {
         "project": str(project),
         "plan": str(result.plan.path),
@@ -112,8 +119,10 @@ def summarise(result: ImportResult, project: Path, created: bool) -> dict[str, A
 
 def render(summary: dict[str, Any]) -> str:
     verb = "created" if summary["created"] else "updated"
-    out = [f"{summary['project']}: {verb}; {summary['line_count']} line(s), "
-           f"{summary['readings']} readings imported from {summary['plan']}"]
+    out = [
+        f"{summary['project']}: {verb}; {summary['line_count']} line(s), "
+        f"{summary['readings']} readings imported from {summary['plan']}"
+    ]
     for line in summary["lines"]:
         unit = "µrad" if line["unit"] == "urad" else "µm"
         out.append(
@@ -122,16 +131,20 @@ def render(summary: dict[str, Any]) -> str:
         )
         out.append(f"      {line['sign_convention']}")
         if line["env_corrected"]:
-            out.append("      environment: as compensated by the laser software "
-                       "(env_corrected = true)")
+            out.append(
+                "      environment: as compensated by the laser software (env_corrected = true)"
+            )
         for text in line["corrections"]:
             out.append(f"      corrected: {text}")
         for text in line["notes"]:
             out.append(f"      note: {text}")
     flags = summary["outliers"]
     if flags:
-        action = ("set to missing (--drop-outliers)" if summary["outliers_dropped"] else
-                  "kept; re-run with --drop-outliers to leave them out")
+        action = (
+            "set to missing (--drop-outliers)"
+            if summary["outliers_dropped"]
+            else "kept; re-run with --drop-outliers to leave them out"
+        )
         out.append(f"{len(flags)} outlier flag(s), {action}:")
         out += [f"  {flag['line']}: {flag['reason']}" for flag in flags]
     else:

@@ -43,27 +43,51 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("files", nargs="+", type=Path, metavar="FILE")
     parser.add_argument("--json", action="store_true", help="print the values as JSON")
-    parser.add_argument("--sign", type=int, choices=(1, -1), default=1,
-                        help="+1 (default): the file's deviations are measured − nominal; -1 "
-                        "flips them (logs only; a plan sets sign per line)")
-    parser.add_argument("--unit", help="deviation unit of a table that does not state it "
-                        "(um, nm, mm, inch; urad, mrad, arcsec, deg); required then, and it must "
-                        "agree with a unit the file states")
-    parser.add_argument("--position-unit", help="position unit of a table that does not state "
-                        "it (mm, um, m, inch); required then (a plan's tables are in mm, the "
-                        "plan.toml contract)")
-    parser.add_argument("--columns", help="column map of a table, e.g. "
-                        "position=Position,deviation=Flat (names or 1-based numbers)")
+    parser.add_argument(
+        "--sign",
+        type=int,
+        choices=(1, -1),
+        default=1,
+        help="+1 (default): the file's deviations are measured − nominal; -1 "
+        "flips them (logs only; a plan sets sign per line)",
+    )
+    parser.add_argument(
+        "--unit",
+        help="deviation unit of a table that does not state it "
+        "(um, nm, mm, inch; urad, mrad, arcsec, deg); required then, and it must "
+        "agree with a unit the file states",
+    )
+    parser.add_argument(
+        "--position-unit",
+        help="position unit of a table that does not state "
+        "it (mm, um, m, inch); required then (a plan's tables are in mm, the "
+        "plan.toml contract)",
+    )
+    parser.add_argument(
+        "--columns",
+        help="column map of a table, e.g. "
+        "position=Position,deviation=Flat (names or 1-based numbers)",
+    )
     parser.add_argument("--data-marker", help="a table's data start after this line (e.g. :START)")
-    parser.add_argument("--straightness", action="store_true",
-                        help="give every line's ISO 230-1 straightness of the mean profile "
-                        "(least-squares, minimum-zone and end-point reference lines); "
-                        "straightness lines of a plan always get it")
-    parser.add_argument("--exclude-outliers", action="store_true",
-                        help="leave out the readings (or runs) the outlier screening flags "
-                        "(5 σ of the run-to-run spread, docs/formats.md) and list them")
-    parser.add_argument("--files-root", type=Path, metavar="DIR",
-                        help="a plan may read files under DIR (default: only its own folder)")
+    parser.add_argument(
+        "--straightness",
+        action="store_true",
+        help="give every line's ISO 230-1 straightness of the mean profile "
+        "(least-squares, minimum-zone and end-point reference lines); "
+        "straightness lines of a plan always get it",
+    )
+    parser.add_argument(
+        "--exclude-outliers",
+        action="store_true",
+        help="leave out the readings (or runs) the outlier screening flags "
+        "(5 σ of the run-to-run spread, docs/formats.md) and list them",
+    )
+    parser.add_argument(
+        "--files-root",
+        type=Path,
+        metavar="DIR",
+        help="a plan may read files under DIR (default: only its own folder)",
+    )
     parser.set_defaults(handler=run)
 
 
@@ -81,8 +105,11 @@ def run(args: argparse.Namespace) -> int:
     entries = []
     for path in args.files:
         for line in _lines(path, args):
-            entries.append(evaluate_line(line, straightness=args.straightness,
-                                         exclude_outliers=args.exclude_outliers))
+            entries.append(
+                evaluate_line(
+                    line, straightness=args.straightness, exclude_outliers=args.exclude_outliers
+                )
+            )
     if args.json:
         print(json.dumps({"lines": [e for e, _ in entries]}, indent=2, ensure_ascii=False))
     else:
@@ -90,8 +117,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def evaluate_line(line: _Line, *, straightness: bool = False,
-                  exclude_outliers: bool = False) -> tuple[dict[str, Any], Iso230Result]:
+def evaluate_line(
+    line: _Line, *, straightness: bool = False, exclude_outliers: bool = False
+) -> tuple[dict[str, Any], Iso230Result]:
     """The JSON entry and the ISO 230-2 result of one line."""
     data = line.data
     flags: list[OutlierFlag] = []
@@ -99,8 +127,12 @@ def evaluate_line(line: _Line, *, straightness: bool = False,
         flags = screen(data, line=line.name, unit=line.unit)
         data = drop(data, flags) if flags else data
     result = evaluate(data, line.unit)
-    entry: dict[str, Any] = {"name": line.name, "file": str(line.file),
-                             "quantity": line.quantity, **result.to_json()}
+    entry: dict[str, Any] = {
+        "name": line.name,
+        "file": str(line.file),
+        "quantity": line.quantity,
+        **result.to_json(),
+    }
     if exclude_outliers:
         entry["excluded"] = [flag.to_json() for flag in flags]
     if line.notes:
@@ -113,8 +145,7 @@ def evaluate_line(line: _Line, *, straightness: bool = False,
         except ValueError as exc:
             raise UserError(f"{line.file}: {line.name}: {exc}") from None
         u = line.unit
-        entry["straightness"] = {"profile": "mean of all runs at each target",
-                                 **values.to_json(u)}
+        entry["straightness"] = {"profile": "mean of all runs at each target", **values.to_json(u)}
         entry[f"straightness_ls_{u}"] = values.least_squares
         entry[f"straightness_mz_{u}"] = values.minimum_zone
         entry[f"straightness_ep_{u}"] = values.end_point
@@ -125,34 +156,57 @@ def _lines(path: Path, args: argparse.Namespace) -> list[_Line]:
     """Every line of a file, in µm/µrad with the chosen sign."""
     if path.suffix.lower() == ".toml":
         imported = import_plan(load_plan(path, files_root=args.files_root))
-        return [_Line(line.name, Path(line.spec.file or path), line.spec.quantity,
-                      line.spec.unit, line.corrected) for line in imported.lines]
+        return [
+            _Line(
+                line.name,
+                Path(line.spec.file or path),
+                line.spec.quantity,
+                line.spec.unit,
+                line.corrected,
+            )
+            for line in imported.lines
+        ]
     unit = normalise_unit(args.unit) if args.unit else None
     if unit is not None and unit not in DEVIATION_FACTOR:
-        raise UserError(f"--unit {args.unit!r} is not a deviation unit; use one of "
-                        f"{choices(tuple(DEVIATION_FACTOR))}")
+        raise UserError(
+            f"--unit {args.unit!r} is not a deviation unit; use one of "
+            f"{choices(tuple(DEVIATION_FACTOR))}"
+        )
     suffix = path.suffix.lower()
     if suffix in (".rtl", ".rta"):
         log = read_rtl(path, sign=args.sign)
         if unit is not None and unit != log.unit:
-            raise UserError(f"{path}: a Renishaw {suffix} log is in {describe(log.unit)} by "
-                            f"definition, but --unit says {describe(unit)}; leave --unit out")
-        return [_Line(path.stem, path, "angular" if log.angular else "linear", log.unit,
-                      log.data)]
+            raise UserError(
+                f"{path}: a Renishaw {suffix} log is in {describe(log.unit)} by "
+                f"definition, but --unit says {describe(unit)}; leave --unit out"
+            )
+        return [_Line(path.stem, path, "angular" if log.angular else "linear", log.unit, log.data)]
     if is_iso_table(SourceText.read(path)):
         table = read_iso_table(path, unit)
         data, unit = table.data, table.unit
     else:
-        fmt = TableFormat(columns=_columns(args.columns), deviation_unit=unit,
-                          position_unit=args.position_unit, data_marker=args.data_marker,
-                          environment=False)
+        fmt = TableFormat(
+            columns=_columns(args.columns),
+            deviation_unit=unit,
+            position_unit=args.position_unit,
+            data_marker=args.data_marker,
+            environment=False,
+        )
         table_file = read_table(path, fmt)
         data, unit = table_file.data, table_file.unit
     angular = is_angle(unit)
     converted = replace(data, deviations=data.deviations * DEVIATION_FACTOR[unit] * args.sign)
     notes = () if unit in ("um", "urad") else (f"deviations converted from {describe(unit)}",)
-    return [_Line(path.stem, path, "angular" if angular else "linear",
-                  "urad" if angular else "um", converted, notes)]
+    return [
+        _Line(
+            path.stem,
+            path,
+            "angular" if angular else "linear",
+            "urad" if angular else "um",
+            converted,
+            notes,
+        )
+    ]
 
 
 def _columns(text: str | None) -> ColumnMap:
@@ -172,8 +226,11 @@ def _columns(text: str | None) -> ColumnMap:
 
 
 def _fmt(value: float | None) -> str:
-    return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else (
-        f"{value:.3f}")
+    return (
+        "—"
+        if value is None or (isinstance(value, float) and math.isnan(value))
+        else (f"{value:.3f}")
+    )
 
 
 def _table(header: list[str], rows: list[list[str]], *, first_left: bool = False) -> list[str]:
@@ -220,23 +277,41 @@ def render(entry: dict[str, Any], result: Iso230Result) -> str:
         ("B  reversal value", None, None, result.B_um),
         ("   mean reversal value", None, None, result.mean_reversal_um),
     )
-    out += _table(["", "↑", "↓", "bidirectional"],
-                  [[label, _fmt(up) if up is not None else "",
-                    _fmt(down) if down is not None else "", _fmt(both)]
-                   for label, up, down, both in rows], first_left=True)
+    out += _table(
+        ["", "↑", "↓", "bidirectional"],
+        [
+            [
+                label,
+                _fmt(up) if up is not None else "",
+                _fmt(down) if down is not None else "",
+                _fmt(both),
+            ]
+            for label, up, down, both in rows
+        ],
+        first_left=True,
+    )
     if "straightness" in entry:
         values = entry["straightness"]
         out.append(f"  straightness of the {values['profile']}:")
         out += _table(
             ["method", symbol],
-            [[STRAIGHTNESS_METHODS[key], _fmt(values[f"{key}_{u}"])]
-             for key in ("least_squares", "minimum_zone", "end_point")],
+            [
+                [STRAIGHTNESS_METHODS[key], _fmt(values[f"{key}_{u}"])]
+                for key in ("least_squares", "minimum_zone", "end_point")
+            ],
             first_left=True,
         )
     per_target = []
     for i, target in enumerate(result.targets_mm):
-        values = (result.mean_up[i], result.mean_down[i], result.mean[i], result.s_up[i],
-                  result.s_down[i], result.reversal[i], result.repeatability[i])
+        values = (
+            result.mean_up[i],
+            result.mean_down[i],
+            result.mean[i],
+            result.s_up[i],
+            result.s_down[i],
+            result.reversal[i],
+            result.repeatability[i],
+        )
         per_target.append([f"{target:.3f}"] + [_fmt(float(v)) for v in values])
     out += _table(["target mm", "x̄↑", "x̄↓", "x̄", "s↑", "s↓", "B_i", "R_i"], per_target)
     return "\n".join(out)

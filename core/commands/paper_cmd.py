@@ -24,16 +24,32 @@ def register(subparsers: Any) -> None:
         help="reproduce the paper's sensitivity figures and Table 3 beside volucal's",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
-    parser.add_argument("--n", type=int, default=PAPER_N,
-                        help=f"samples per factor (default {PAPER_N}, the paper's)")
+    parser.add_argument(
+        "--n",
+        type=int,
+        default=PAPER_N,
+        help=f"samples per factor (default {PAPER_N}, the paper's)",
+    )
     parser.add_argument("--m", type=int, default=4, help="interference factor M (default 4)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random phases")
-    parser.add_argument("--repeats", type=int, default=4,
-                        help="independent designs; their spread is the uncertainty (default 4)")
-    parser.add_argument("--grid-step", type=float, default=80.0, metavar="MM",
-                        help="spacing of the map's grid points (default 80 mm)")
-    parser.add_argument("--tool-offset", metavar="D1,D2,D3",
-                        help="tool point, mm (default 0,0,200: the paper's 200 mm tool)")
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=4,
+        help="independent designs; their spread is the uncertainty (default 4)",
+    )
+    parser.add_argument(
+        "--grid-step",
+        type=float,
+        default=80.0,
+        metavar="MM",
+        help="spacing of the map's grid points (default 80 mm)",
+    )
+    parser.add_argument(
+        "--tool-offset",
+        metavar="D1,D2,D3",
+        help="tool point, mm (default 0,0,200: the paper's 200 mm tool)",
+    )
     parser.add_argument("--json", action="store_true", help="print the comparison as JSON")
     parser.set_defaults(handler=run)
 

@@ -41,33 +41,68 @@ def register(subparsers: Any) -> None:
         help="EFAST global sensitivity of the volumetric error to the 21 errors",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
-    parser.add_argument("project", nargs="?", type=Path, metavar="PROJECT.h5",
-                        help="a project with an identification")
-    parser.add_argument("--preset", choices=("paper",),
-                        help="analyse the paper's Table 2 errors instead of a project")
-    parser.add_argument("--identification", metavar="NAME",
-                        help="identification to analyse (default: the project's last)")
+    parser.add_argument(
+        "project",
+        nargs="?",
+        type=Path,
+        metavar="PROJECT.h5",
+        help="a project with an identification",
+    )
+    parser.add_argument(
+        "--preset",
+        choices=("paper",),
+        help="analyse the paper's Table 2 errors instead of a project",
+    )
+    parser.add_argument(
+        "--identification",
+        metavar="NAME",
+        help="identification to analyse (default: the project's last)",
+    )
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--position", metavar="X,Y,Z", help="one fixed NC position, mm")
-    where.add_argument("--map", type=float, metavar="STEP",
-                       help="a map: one analysis per grid point about STEP mm apart (e.g. 50)")
-    where.add_argument("--positions", choices=("design", "noise"),
-                       help="design (the default without --position or --map): X, Y, Z become "
-                       "factors uniform over the strokes; noise is refused with the reason")
-    parser.add_argument("--tool-offset", metavar="D1,D2,D3",
-                        help="tool point relative to the spindle gauge point, mm (default: the "
-                        "machine's)")
-    parser.add_argument("--output", action="append", metavar="NAME",
-                        help="Ex, Ey, Ez or ET; repeat or separate by commas (default: all)")
+    where.add_argument(
+        "--map",
+        type=float,
+        metavar="STEP",
+        help="a map: one analysis per grid point about STEP mm apart (e.g. 50)",
+    )
+    where.add_argument(
+        "--positions",
+        choices=("design", "noise"),
+        help="design (the default without --position or --map): X, Y, Z become "
+        "factors uniform over the strokes; noise is refused with the reason",
+    )
+    parser.add_argument(
+        "--tool-offset",
+        metavar="D1,D2,D3",
+        help="tool point relative to the spindle gauge point, mm (default: the machine's)",
+    )
+    parser.add_argument(
+        "--output",
+        action="append",
+        metavar="NAME",
+        help="Ex, Ey, Ez or ET; repeat or separate by commas (default: all)",
+    )
     parser.add_argument("--n", type=int, default=1400, help="samples per factor (default 1400)")
     parser.add_argument("--m", type=int, default=4, help="interference factor M (default 4)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random phases")
-    parser.add_argument("--repeats", type=int, default=4,
-                        help="independent designs; their spread is the uncertainty (default 4)")
-    parser.add_argument("--method", choices=("tail", "classic"), default="tail",
-                        help="tail (default) or classic (SALib's estimator)")
-    parser.add_argument("--name", default="sensitivity",
-                        help="name of the stored result in the project (default: sensitivity)")
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=4,
+        help="independent designs; their spread is the uncertainty (default 4)",
+    )
+    parser.add_argument(
+        "--method",
+        choices=("tail", "classic"),
+        default="tail",
+        help="tail (default) or classic (SALib's estimator)",
+    )
+    parser.add_argument(
+        "--name",
+        default="sensitivity",
+        help="name of the stored result in the project (default: sensitivity)",
+    )
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
     parser.set_defaults(handler=run)
 

@@ -43,59 +43,120 @@ def register(subparsers: Any) -> None:
     parser.add_argument("files", nargs="+", type=Path, metavar="FILE")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
     read = parser.add_argument_group("reading the table")
-    read.add_argument("--error", action="append", metavar="COLUMN[=UNIT]", required=True,
-                      help="an error column and its unit unless the header gives it, e.g. "
-                      "\"delta L=um\" (um, mm, nm, urad, arcsec…); repeat for several channels")
-    read.add_argument("--sign", type=int, choices=(1, -1), default=1,
-                      help="+1 (default): the error columns hold measured − nominal; -1 flips "
-                      "them")
-    read.add_argument("--temperatures", metavar="COLUMNS",
-                      help="comma-separated temperature columns (names or 1-based numbers); "
-                      "default: every column that is not time or an error")
-    read.add_argument("--temperature-unit", metavar="UNIT",
-                      help="unit of the temperature columns unless the header gives it: C, K "
-                      "or F")
-    read.add_argument("--time", metavar="COLUMN", help="the time column (default: a column "
-                      "named time, if any)")
-    read.add_argument("--time-unit", metavar="UNIT", help="unit of a numeric time column "
-                      "unless the header gives it: s, min, h, ms")
-    read.add_argument("--interval", metavar="DURATION",
-                      help="time between rows when the table has no time column, with its "
-                      "unit, e.g. 60s or 1min")
+    read.add_argument(
+        "--error",
+        action="append",
+        metavar="COLUMN[=UNIT]",
+        required=True,
+        help="an error column and its unit unless the header gives it, e.g. "
+        '"delta L=um" (um, mm, nm, urad, arcsec…); repeat for several channels',
+    )
+    read.add_argument(
+        "--sign",
+        type=int,
+        choices=(1, -1),
+        default=1,
+        help="+1 (default): the error columns hold measured − nominal; -1 flips them",
+    )
+    read.add_argument(
+        "--temperatures",
+        metavar="COLUMNS",
+        help="comma-separated temperature columns (names or 1-based numbers); "
+        "default: every column that is not time or an error",
+    )
+    read.add_argument(
+        "--temperature-unit",
+        metavar="UNIT",
+        help="unit of the temperature columns unless the header gives it: C, K or F",
+    )
+    read.add_argument(
+        "--time", metavar="COLUMN", help="the time column (default: a column named time, if any)"
+    )
+    read.add_argument(
+        "--time-unit",
+        metavar="UNIT",
+        help="unit of a numeric time column unless the header gives it: s, min, h, ms",
+    )
+    read.add_argument(
+        "--interval",
+        metavar="DURATION",
+        help="time between rows when the table has no time column, with its unit, e.g. 60s or 1min",
+    )
     model = parser.add_argument_group("choosing the model")
-    model.add_argument("--channel", action="append", metavar="NAME",
-                       help="model only this error channel (repeatable; default: all)")
-    model.add_argument("--train-fraction", type=float, default=0.5, metavar="F",
-                       help="the model is chosen and fitted on the first F of the record and "
-                       "tested on the rest (default %(default)s; 1 uses all, with no held-out "
-                       "test)")
-    model.add_argument("--max-sensors", type=int, default=6, metavar="N",
-                       help="at most N sensors in the model (default %(default)s)")
-    model.add_argument("--sensors", metavar="NAMES",
-                       help="comma-separated sensors the model may use (default: all usable)")
-    model.add_argument("--blocks", type=int, default=10, metavar="N",
-                       help="blocks of the rolling-origin cross-validation (default "
-                       "%(default)s)")
-    model.add_argument("--static", action="store_true",
-                       help="no first-order lags (a static model)")
+    model.add_argument(
+        "--channel",
+        action="append",
+        metavar="NAME",
+        help="model only this error channel (repeatable; default: all)",
+    )
+    model.add_argument(
+        "--train-fraction",
+        type=float,
+        default=0.5,
+        metavar="F",
+        help="the model is chosen and fitted on the first F of the record and "
+        "tested on the rest (default %(default)s; 1 uses all, with no held-out "
+        "test)",
+    )
+    model.add_argument(
+        "--max-sensors",
+        type=int,
+        default=6,
+        metavar="N",
+        help="at most N sensors in the model (default %(default)s)",
+    )
+    model.add_argument(
+        "--sensors",
+        metavar="NAMES",
+        help="comma-separated sensors the model may use (default: all usable)",
+    )
+    model.add_argument(
+        "--blocks",
+        type=int,
+        default=10,
+        metavar="N",
+        help="blocks of the rolling-origin cross-validation (default %(default)s)",
+    )
+    model.add_argument("--static", action="store_true", help="no first-order lags (a static model)")
     model.add_argument("--linear", action="store_true", help="no squared terms")
     out = parser.add_argument_group("output")
-    out.add_argument("--export", type=Path, metavar="DIR",
-                     help="write the model for LinuxCNC (.hal) and as .json/.csv tables here")
-    out.add_argument("--hal-period", metavar="DURATION", default="1ms",
-                     help="period of the HAL thread the snippet runs in (default %(default)s)")
-    out.add_argument("--hal-thread", default="servo-thread",
-                     help="HAL thread the snippet adds its functions to (default %(default)s)")
-    out.add_argument("--hal-axis", choices=("x", "y", "z"),
-                     help="also write <name>-eoffset.hal, which applies the compensation as "
-                     "LinuxCNC's external offset of this axis (needs [AXIS_L]OFFSET_AV_RATIO)")
-    out.add_argument("--hal-loaded", metavar="COMPONENTS",
-                     help="HAL components your configuration loads already (e.g. "
-                     "lowpass,scale,not): the snippet lists its names for your own loadrt line "
-                     "instead of loading them again")
-    out.add_argument("--project", type=Path, metavar="P.h5",
-                     help="store the record and its models in this project (created if missing) "
-                     "under /thermal/<name>")
+    out.add_argument(
+        "--export",
+        type=Path,
+        metavar="DIR",
+        help="write the model for LinuxCNC (.hal) and as .json/.csv tables here",
+    )
+    out.add_argument(
+        "--hal-period",
+        metavar="DURATION",
+        default="1ms",
+        help="period of the HAL thread the snippet runs in (default %(default)s)",
+    )
+    out.add_argument(
+        "--hal-thread",
+        default="servo-thread",
+        help="HAL thread the snippet adds its functions to (default %(default)s)",
+    )
+    out.add_argument(
+        "--hal-axis",
+        choices=("x", "y", "z"),
+        help="also write <name>-eoffset.hal, which applies the compensation as "
+        "LinuxCNC's external offset of this axis (needs [AXIS_L]OFFSET_AV_RATIO)",
+    )
+    out.add_argument(
+        "--hal-loaded",
+        metavar="COMPONENTS",
+        help="HAL components your configuration loads already (e.g. "
+        "lowpass,scale,not): the snippet lists its names for your own loadrt line "
+        "instead of loading them again",
+    )
+    out.add_argument(
+        "--project",
+        type=Path,
+        metavar="P.h5",
+        help="store the record and its models in this project (created if missing) "
+        "under /thermal/<name>",
+    )
     out.add_argument("--name", help="name in the project (default: the file's stem)")
     parser.set_defaults(handler=run)
 
@@ -105,12 +166,12 @@ def parse_duration(text: str, what: str) -> float:
     unit."""
     match = _DURATION.match(text)
     if not match:
-        raise UserError(f"{what} {text!r}: give a number with its unit, e.g. 60s, 1min, 0.5h, "
-                        "1ms")
+        raise UserError(f"{what} {text!r}: give a number with its unit, e.g. 60s, 1min, 0.5h, 1ms")
     unit = normalise_unit(match.group(2))
     if unit not in TIME_FACTOR:
-        raise UserError(f"{what} {text!r}: unit {match.group(2)!r} is not one of "
-                        f"{', '.join(TIME_FACTOR)}")
+        raise UserError(
+            f"{what} {text!r}: unit {match.group(2)!r} is not one of {', '.join(TIME_FACTOR)}"
+        )
     return float(match.group(1)) * TIME_FACTOR[unit]
 
 
@@ -119,14 +180,22 @@ def table_format(args: argparse.Namespace) -> ThermalTableFormat:
     for item in args.error:
         column, equals, unit = item.rpartition("=") if "=" in item else (item, "", "")
         name = column.strip()
-        errors.append(ErrorColumn(int(name) if name.isdigit() else name,
-                                  unit.strip() or None if equals else None, sign=args.sign))
+        errors.append(
+            ErrorColumn(
+                int(name) if name.isdigit() else name,
+                unit.strip() or None if equals else None,
+                sign=args.sign,
+            )
+        )
     temperatures = None
     if args.temperatures:
-        temperatures = tuple(int(t) if t.strip().isdigit() else t.strip()
-                             for t in args.temperatures.split(",") if t.strip())
+        temperatures = tuple(
+            int(t) if t.strip().isdigit() else t.strip()
+            for t in args.temperatures.split(",")
+            if t.strip()
+        )
     interval = parse_duration(args.interval, "--interval") if args.interval else None
-    time_column = (int(args.time) if args.time and args.time.isdigit() else args.time)
+    time_column = int(args.time) if args.time and args.time.isdigit() else args.time
     try:
         return ThermalTableFormat(
             errors=tuple(errors),
@@ -161,8 +230,11 @@ def run(args: argparse.Namespace) -> int:
     if args.export is not None:
         loaded = tuple(c.strip() for c in (args.hal_loaded or "").split(",") if c.strip())
         export_options = ThermalExportOptions(
-            thread=args.hal_thread, period_s=parse_duration(args.hal_period, "--hal-period"),
-            axis=args.hal_axis, loaded=loaded)
+            thread=args.hal_thread,
+            period_s=parse_duration(args.hal_period, "--hal-period"),
+            axis=args.hal_axis,
+            loaded=loaded,
+        )
     if args.name and len(args.files) > 1:
         raise UserError("--name names one record: give one FILE with it")
     entries = []
@@ -174,8 +246,9 @@ def run(args: argparse.Namespace) -> int:
     for path in args.files:
         measurement = read_thermal_table(path, fmt, name=args.name)
         channels = args.channel or [c.name for c in measurement.errors]
-        results = [fit_thermal(ThermalFitRequest(measurement, channel, options))
-                   for channel in channels]
+        results = [
+            fit_thermal(ThermalFitRequest(measurement, channel, options)) for channel in channels
+        ]
         exported: list[str] = []
         if export_options is not None:
             for result in results:
@@ -206,8 +279,13 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _entry_json(path: Path, measurement: ThermalMeasurement, results: list[ThermalFitResult],
-                exported: list[str], stored: str | None) -> dict[str, Any]:
+def _entry_json(
+    path: Path,
+    measurement: ThermalMeasurement,
+    results: list[ThermalFitResult],
+    exported: list[str],
+    stored: str | None,
+) -> dict[str, Any]:
     return {
         "file": str(path),
         "name": measurement.name,
@@ -215,8 +293,10 @@ def _entry_json(path: Path, measurement: ThermalMeasurement, results: list[Therm
         "duration_s": measurement.duration_s,
         "sample_interval_s": measurement.sample_interval_s,
         "time_source": measurement.time_source,
-        "error_channels": [{"name": c.name, "unit": c.unit, "raw_unit": c.raw_unit,
-                            "sign": c.sign} for c in measurement.errors],
+        "error_channels": [
+            {"name": c.name, "unit": c.unit, "raw_unit": c.raw_unit, "sign": c.sign}
+            for c in measurement.errors
+        ],
         "temperature_unit": "degC",
         "sensors": list(measurement.sensor_names),
         "excluded": [{"name": e.name, "reason": e.reason} for e in measurement.excluded],
@@ -232,12 +312,20 @@ def _hours(seconds: float) -> str:
 
 
 def _f(value: float | None) -> str:
-    return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else (
-        f"{value:.3f}")
+    return (
+        "—"
+        if value is None or (isinstance(value, float) and math.isnan(value))
+        else (f"{value:.3f}")
+    )
 
 
-def render(path: Path, measurement: ThermalMeasurement, results: list[ThermalFitResult],
-           exported: list[str], stored: str | None) -> str:
+def render(
+    path: Path,
+    measurement: ThermalMeasurement,
+    results: list[ThermalFitResult],
+    exported: list[str],
+    stored: str | None,
+) -> str:
     """What the command prints for one file."""
     m = measurement
     out = [
@@ -249,34 +337,45 @@ def render(path: Path, measurement: ThermalMeasurement, results: list[ThermalFit
     for r in results:
         sym = r.symbol
         out.append("")
-        split = (f"chosen and fitted on the first {100 * r.options.train_fraction:g} % "
-                 f"({r.train_samples} samples, {_hours(r.split_time_s)}), tested on the "
-                 f"{r.test_samples} samples after" if r.test_samples else
-                 f"chosen and fitted on all {r.train_samples} samples (no held-out test)")
+        split = (
+            f"chosen and fitted on the first {100 * r.options.train_fraction:g} % "
+            f"({r.train_samples} samples, {_hours(r.split_time_s)}), tested on the "
+            f"{r.test_samples} samples after"
+            if r.test_samples
+            else f"chosen and fitted on all {r.train_samples} samples (no held-out test)"
+        )
         out.append(f"{r.channel} ({sym}): {split}")
         kind = "dynamic (first-order lags)" if r.model.dynamic else "static"
-        out.append(f"  model: {len(r.model.sensors)} sensor(s) ({', '.join(r.model.sensors)}), "
-                   f"{kind}")
+        out.append(
+            f"  model: {len(r.model.sensors)} sensor(s) ({', '.join(r.model.sensors)}), {kind}"
+        )
         out.append(f"    {r.model.formula()}")
         out.append(f"    {'term':<28}{'coefficient':>13}{'std':>10}  unit")
-        out.append(f"    {'constant':<28}{r.model.intercept:13.4f}{r.model.intercept_std:10.4f}"
-                   f"  {sym}")
-        for term, c, s in zip(r.model.terms, r.model.coefficients, r.model.coefficient_std,
-                              strict=True):
-            out.append(f"    {term.label() + f' − {term.reference_c:.2f} °C':<28}{c:13.4f}"
-                       f"{s:10.4f}  {term.unit(r.unit)}")
+        out.append(
+            f"    {'constant':<28}{r.model.intercept:13.4f}{r.model.intercept_std:10.4f}  {sym}"
+        )
+        for term, c, s in zip(
+            r.model.terms, r.model.coefficients, r.model.coefficient_std, strict=True
+        ):
+            out.append(
+                f"    {term.label() + f' − {term.reference_c:.2f} °C':<28}{c:13.4f}"
+                f"{s:10.4f}  {term.unit(r.unit)}"
+            )
         out.append("  choice (" + r.cv_description.split(":")[0] + "):")
         out += [f"    {d}" for d in r.decisions]
         out.append(f"  RMS error, {sym}:{'train':>25}{'CV':>9}{'test':>9}")
         for b in r.baselines:
-            label = b.name if b.name != "best single sensor by cross-validation" else (
-                f"best single sensor ({b.sensors[0]})")
+            label = (
+                b.name
+                if b.name != "best single sensor by cross-validation"
+                else (f"best single sensor ({b.sensors[0]})")
+            )
             if b.name.startswith("all sensors"):
                 label = f"all {len(b.sensors)} sensors, static"
-            out.append(f"    {label:<30}{_f(b.train_rms):>9}{_f(b.cv_rms):>9}"
-                       f"{_f(b.test_rms):>9}")
-        out.append(f"    {'volucal model':<30}{_f(r.train_rms):>9}{_f(r.cv_rms):>9}"
-                   f"{_f(r.test_rms):>9}")
+            out.append(f"    {label:<30}{_f(b.train_rms):>9}{_f(b.cv_rms):>9}{_f(b.test_rms):>9}")
+        out.append(
+            f"    {'volucal model':<30}{_f(r.train_rms):>9}{_f(r.cv_rms):>9}{_f(r.test_rms):>9}"
+        )
         if r.outliers:
             out.append(f"  {len(r.outliers)} sample(s) leave the smooth trend (flagged, kept):")
             out += [f"    {f.reason}" for f in r.outliers]

@@ -64,16 +64,25 @@ def _export_gcode(context: ExportContext) -> ExporterOutput:
             "--program FILE.ngc"
         )
     program = Path(options.program)
-    out = file_in_folder(context.out_dir, f"{program.stem}_volucal{program.suffix or '.ngc'}",
-                         "the rewritten program's name (from --program)")
+    out = file_in_folder(
+        context.out_dir,
+        f"{program.stem}_volucal{program.suffix or '.ngc'}",
+        "the rewritten program's name (from --program)",
+    )
     rewrite = options.rewrite
     if options.tool_offset_mm is not None:
         rewrite = dataclasses.replace(rewrite, tool_offset_mm=options.tool_offset_mm)
     result = rewrite_file(context.source, program, out, rewrite)
     applied: tuple[AppliedValues, ...] = ()
     if result.max_correction_at_mm is not None:
-        applied = (table_values(f"{program.name} line {result.max_correction_line}", "",
-                                [result.max_correction_at_mm], [result.max_correction_um]),)
+        applied = (
+            table_values(
+                f"{program.name} line {result.max_correction_line}",
+                "",
+                [result.max_correction_at_mm],
+                [result.max_correction_um],
+            ),
+        )
     return ExporterOutput(
         files=(out,),
         convention=(
@@ -211,8 +220,11 @@ def export_model(
         raise UserError(f"{out}: cannot create the output folder ({exc.strerror})") from None
     report(progress, 0.0, "computing tables")
     tables = build_tables(error_source, options.table_request(), cancel=cancel)
-    kinds = tuple(k for k in CARRIED.get(format, ("axis", "cross", "grid"))
-                  if k != "cross" or options.include_cross)
+    kinds = tuple(
+        k
+        for k in CARRIED.get(format, ("axis", "cross", "grid"))
+        if k != "cross" or options.include_cross
+    )
     check_plausible(format, table_kinds_values(tables, kinds), options.max_correction_um)
     written = tables
     if format == "fanuc":
@@ -234,8 +246,10 @@ def export_model(
         methods = standard_compensations(error_source, tables)
         if output.compensation is not None:
             methods = {
-                "export": (f"the {format} export as the controller applies it",
-                           output.compensation),
+                "export": (
+                    f"the {format} export as the controller applies it",
+                    output.compensation,
+                ),
                 **methods,
             }
         verification = verify(

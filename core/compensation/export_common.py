@@ -130,8 +130,11 @@ def loaded_values(tables: tuple[LoadedTable, ...]) -> tuple[AppliedValues, ...]:
     out = []
     for table in tables:
         moving = {1: ", moving +", -1: ", moving -"}.get(table.direction, "")
-        label = (f"{table.input_axis} table{moving}" if table.input_axis == table.output_axis
-                 else f"{table.output_axis} along {table.input_axis}{moving}")
+        label = (
+            f"{table.input_axis} table{moving}"
+            if table.input_axis == table.output_axis
+            else f"{table.output_axis} along {table.input_axis}{moving}"
+        )
         out.append(table_values(label, table.input_axis, table.position_mm, table.value_um))
     return tuple(out)
 
@@ -145,12 +148,20 @@ def table_kinds_values(tables: CompensationTables, kinds: tuple[str, ...]) -> li
             values = np.stack([table.correction_forward_um, table.correction_backward_um], axis=1)
             out.append(table_values(f"{axis} table", axis, table.position_mm, values))
     if "cross" in kinds:
-        out += [table_values(f"{t.output_axis} along {t.input_axis}", t.input_axis,
-                             t.position_mm, t.correction_um) for t in tables.cross]
+        out += [
+            table_values(
+                f"{t.output_axis} along {t.input_axis}",
+                t.input_axis,
+                t.position_mm,
+                t.correction_um,
+            )
+            for t in tables.cross
+        ]
     if "grid" in kinds and tables.grid is not None:
         grid = tables.grid
-        out.append(table_values("volumetric grid", "", grid.points_mm,
-                                grid.correction_um.reshape(-1, 3)))
+        out.append(
+            table_values("volumetric grid", "", grid.points_mm, grid.correction_um.reshape(-1, 3))
+        )
     return out
 
 
@@ -167,7 +178,7 @@ def write_text(path: Path, text: str, newline: str = "\n") -> Path:
     except UnicodeEncodeError as exc:
         temporary.unlink(missing_ok=True)
         raise UserError(
-            f"{path}: the file would hold {text[exc.start:exc.end]!r}, which a controller's "
+            f"{path}: the file would hold {text[exc.start : exc.end]!r}, which a controller's "
             "ASCII file cannot carry; use ASCII names (axis names, program names)"
         ) from None
     except OSError as exc:

@@ -119,8 +119,11 @@ def export(context: ExportContext) -> ExporterOutput:
         raise TableLimitError(
             f"the pitch error tables need {next_number} compensation points but the control "
             f"has {limit} (numbers 0..{limit - 1}); export with a larger --spacing"
-            + (" or pass the control's count with --max-points"
-               if ceiling is not None and limit < ceiling.value else "")
+            + (
+                " or pass the control's count with --max-points"
+                if ceiling is not None and limit < ceiling.value
+                else ""
+            )
         )
     parameters: dict[int, dict[str, int]] = {3620: {}, 3621: {}, 3622: {}, 3623: {}, 3624: {}}
     if bidirectional:
@@ -163,10 +166,13 @@ def export(context: ExportContext) -> ExporterOutput:
             directions.append(("-", abs_backward, plan.low_negative, -1))
         for label, absolute, first, direction in directions:
             increments = _increments(absolute, zero, plan.below, plan.above)
-            section_ends = [nodes[zero] + (offset - (plan.reference - plan.low)) * interval
-                            for offset in range(len(increments))]
-            check_values("fanuc", f"the {axis} pitch error table ({label})", section_ends,
-                         increments)
+            section_ends = [
+                nodes[zero] + (offset - (plan.reference - plan.low)) * interval
+                for offset in range(len(increments))
+            ]
+            check_values(
+                "fanuc", f"the {axis} pitch error table ({label})", section_ends, increments
+            )
             for offset, value in enumerate(increments):
                 n = first + offset
                 data[n] = value

@@ -91,8 +91,9 @@ def grid_table(
     xx, yy = np.meshgrid(x, y)
     positions = np.stack([xx.ravel(), yy.ravel()], axis=1)
     reference = np.array([identification.reference_mm])
-    values = (identification.error(positions, surface=surface)
-              - identification.error(reference, surface=surface))
+    values = identification.error(positions, surface=surface) - identification.error(
+        reference, surface=surface
+    )
     error = np.stack([values[:, k].reshape(xx.shape) for k in range(2)])
     beyond = identification.beyond_measured(positions).reshape(xx.shape)
     return Grid2DTable(x, y, error, identification.reference_mm, beyond)
@@ -102,22 +103,30 @@ def _f(value: float) -> str:
     return f"{round(float(value), DECIMALS) + 0.0:.{DECIMALS}f}"
 
 
-def write_grid_csv(path: str | Path, table: Grid2DTable,
-                   comments: Sequence[str] = ()) -> Path:
+def write_grid_csv(path: str | Path, table: Grid2DTable, comments: Sequence[str] = ()) -> Path:
     """Write the generic CSV grid (module notes) atomically."""
     lines = [f"# {c}" for c in comments]
-    lines += [f"# sign: {SIGN_CONVENTION}",
-              f"# reference (zero) at X = {table.reference_mm[0]:g} mm, Y = "
-              f"{table.reference_mm[1]:g} mm",
-              "x_mm,y_mm,error_x_um,error_y_um,correction_x_um,correction_y_um,beyond_measured"]
+    lines += [
+        f"# sign: {SIGN_CONVENTION}",
+        f"# reference (zero) at X = {table.reference_mm[0]:g} mm, Y = {table.reference_mm[1]:g} mm",
+        "x_mm,y_mm,error_x_um,error_y_um,correction_x_um,correction_y_um,beyond_measured",
+    ]
     correction = table.correction_um
     for j, y in enumerate(table.y_mm):
         for i, x in enumerate(table.x_mm):
-            lines.append(",".join([
-                f"{x:.6f}", f"{y:.6f}", _f(table.error_um[0, j, i]), _f(table.error_um[1, j, i]),
-                _f(correction[0, j, i]), _f(correction[1, j, i]),
-                str(int(table.beyond_measured[j, i])),
-            ]))
+            lines.append(
+                ",".join(
+                    [
+                        f"{x:.6f}",
+                        f"{y:.6f}",
+                        _f(table.error_um[0, j, i]),
+                        _f(table.error_um[1, j, i]),
+                        _f(correction[0, j, i]),
+                        _f(correction[1, j, i]),
+                        str(int(table.beyond_measured[j, i])),
+                    ]
+                )
+            )
     return write_text(Path(path), "\n".join(lines) + "\n")
 
 
@@ -149,8 +158,10 @@ def write_aerotech_cal(
     for axis in GRID_AXES:
         number = axis_numbers.get(axis)
         if not isinstance(number, int) or isinstance(number, bool) or number < 0:
-            raise UserError(f"the .cal table needs the controller's axis number of {axis} "
-                            "(e.g. --cal-axes X=6,Y=5)")
+            raise UserError(
+                f"the .cal table needs the controller's axis number of {axis} "
+                "(e.g. --cal-axes X=6,Y=5)"
+            )
     col_nodes = table.x_mm if column_axis == "X" else table.y_mm
     row_nodes = table.y_mm if column_axis == "X" else table.x_mm
     col_step = _uniform_step(col_nodes, column_axis)
@@ -178,8 +189,12 @@ def write_aerotech_cal(
         units += f" OFFSETROW = {-row_nodes[0]:.3f} OFFSETCOL = {-col_nodes[0]:.3f}"
     lines.append(units)
     for j in range(row_nodes.size):
-        lines.append("".join(f"{_f(correction[col_k, j, i])}  {_f(correction[row_k, j, i])}  \t"
-                             for i in range(col_nodes.size)))
+        lines.append(
+            "".join(
+                f"{_f(correction[col_k, j, i])}  {_f(correction[row_k, j, i])}  \t"
+                for i in range(col_nodes.size)
+            )
+        )
     lines.append(":END")
     return write_text(Path(path), "\n".join(lines) + "\n", newline="\r\n")
 
@@ -201,13 +216,16 @@ class AerotechCal:
 
     @property
     def row_mm(self) -> FloatArray:
-        return np.asarray(-self.offset_row_mm + self.row_step_mm
-                          * np.arange(self.values.shape[1]), dtype=float)
+        return np.asarray(
+            -self.offset_row_mm + self.row_step_mm * np.arange(self.values.shape[1]), dtype=float
+        )
 
     @property
     def column_mm(self) -> FloatArray:
-        return np.asarray(-self.offset_column_mm + self.column_step_mm
-                          * np.arange(self.values.shape[2]), dtype=float)
+        return np.asarray(
+            -self.offset_column_mm + self.column_step_mm * np.arange(self.values.shape[2]),
+            dtype=float,
+        )
 
 
 _OPTION = re.compile(r"(\w+)\s*=\s*(\S+)")
@@ -235,14 +253,18 @@ def read_aerotech_cal(path: str | Path) -> AerotechCal:
             tokens = stripped.split()[1:]
             if header is None:
                 if len(tokens) != 7:
-                    raise source.error(":START2D: expected row axis, column axis, two output "
-                                       "axes, row step, column step and column count", number)
+                    raise source.error(
+                        ":START2D: expected row axis, column axis, two output "
+                        "axes, row step, column step and column count",
+                        number,
+                    )
                 header = tokens
                 try:
                     expected = 2 * int(tokens[6])
                 except ValueError:
-                    raise source.error(f":START2D: the column count {tokens[6]!r} is not a "
-                                       "whole number", number) from None
+                    raise source.error(
+                        f":START2D: the column count {tokens[6]!r} is not a whole number", number
+                    ) from None
             else:
                 options.update({k.upper(): v for k, v in _OPTION.findall(stripped)})
                 if "OUTAXIS3" in options:
@@ -254,8 +276,11 @@ def read_aerotech_cal(path: str | Path) -> AerotechCal:
             raise source.error("a table row before the :START2D line", number)
         tokens = stripped.split()
         if len(tokens) != expected:
-            raise source.error(f"{len(tokens)} values where :START2D announces {expected}: the "
-                               "file is cut short or a value is missing", number)
+            raise source.error(
+                f"{len(tokens)} values where :START2D announces {expected}: the "
+                "file is cut short or a value is missing",
+                number,
+            )
         rows.append([parse_float(t, source, number, "correction") for t in tokens])
     if header is None:
         raise source.error("no :START2D line: not a 2-D calibration file", source.last_line)
@@ -270,8 +295,17 @@ def read_aerotech_cal(path: str | Path) -> AerotechCal:
         offsets = [float(options.get(k, "0")) for k in ("OFFSETROW", "OFFSETCOL")]
     except ValueError as exc:
         raise FormatError(source.path, f":START2D: {exc}") from None
-    return AerotechCal(axes[0], axes[1], (axes[2], axes[3]), steps[0], steps[1], offsets[0],
-                       offsets[1], options, table)
+    return AerotechCal(
+        axes[0],
+        axes[1],
+        (axes[2], axes[3]),
+        steps[0],
+        steps[1],
+        offsets[0],
+        offsets[1],
+        options,
+        table,
+    )
 
 
 def cal_as_table(cal: AerotechCal, axis_numbers: Mapping[str, int]) -> tuple[Lattice, FloatArray]:
@@ -282,8 +316,10 @@ def cal_as_table(cal: AerotechCal, axis_numbers: Mapping[str, int]) -> tuple[Lat
         row_axis, column_axis = names[cal.row_axis], names[cal.column_axis]
         outputs = [names[a] for a in cal.output_axes]
     except KeyError as exc:
-        raise UserError(f"the .cal's axis {exc.args[0]} is neither X ({axis_numbers.get('X')}) "
-                        f"nor Y ({axis_numbers.get('Y')})") from None
+        raise UserError(
+            f"the .cal's axis {exc.args[0]} is neither X ({axis_numbers.get('X')}) "
+            f"nor Y ({axis_numbers.get('Y')})"
+        ) from None
     correction = np.zeros_like(cal.values)
     for k, axis in enumerate(outputs):
         correction[GRID_AXES.index(axis)] = cal.values[k]

@@ -107,8 +107,7 @@ def export(context: ExportContext) -> ExporterOutput:
         limit = point_limit("isg", options.max_points)
         check_count("isg", label, len(nodes), limit, float(nodes[-1] - nodes[0]), step)
         check_positions("isg", label, nodes)
-        check_values("isg", label + " (interval, start)", nodes[:2],
-                     [step * 1e4, nodes[0] * 1e4])
+        check_values("isg", label + " (interval, start)", nodes[:2], [step * 1e4, nodes[0] * 1e4])
         mean = table.correction_mean_um
         pos_tenths = -(table.correction_forward_um - mean) / TENTH_UM
         neg_tenths = -(table.correction_backward_um - mean) / TENTH_UM

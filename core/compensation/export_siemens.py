@@ -115,8 +115,14 @@ def export(context: ExportContext) -> ExporterOutput:
             nodes, step = _equidistant(nodes_in, inp)
             label = f"the {out}=f({inp}) table"
             limit = options.max_points or CEC_MAX_POINTS
-            check_count("siemens", label + " (Siemens CEC, MD18342)", len(nodes), limit,
-                        float(nodes[-1] - nodes[0]), step)
+            check_count(
+                "siemens",
+                label + " (Siemens CEC, MD18342)",
+                len(nodes),
+                limit,
+                float(nodes[-1] - nodes[0]),
+                step,
+            )
             check_positions("siemens", label, nodes)
             values_mm = rounded(values / 1e3, DECIMALS)
             check_values("siemens", label, nodes, values_mm)

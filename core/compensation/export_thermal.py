@@ -130,18 +130,22 @@ def export_thermal(
     options = options or ThermalExportOptions()
     model = source.model if isinstance(source, ThermalFitResult) else source
     if model.unit != "um":
-        raise UserError(f"{model.channel}: only translation errors (µm) are compensated through "
-                        "HAL offsets; this channel is in µrad")
+        raise UserError(
+            f"{model.channel}: only translation errors (µm) are compensated through "
+            "HAL offsets; this channel is in µrad"
+        )
     folder = Path(out_dir)
     if folder.exists() and not folder.is_dir():
         raise UserError(f"{folder}: exists and is not a folder")
     folder.mkdir(parents=True, exist_ok=True)
-    prefix = hal_name(options.prefix or f"thermal-{model.channel}")[:MAX_INSTANCE_NAME - 12]
+    prefix = hal_name(options.prefix or f"thermal-{model.channel}")[: MAX_INSTANCE_NAME - 12]
     plan = _HalPlan(model, prefix, options)
     files = [
         write_text(folder / f"{prefix}.hal", plan.text()),
-        write_text(folder / f"{prefix}.json", json.dumps(
-            _json(source, model, plan, options), indent=2, ensure_ascii=True) + "\n"),
+        write_text(
+            folder / f"{prefix}.json",
+            json.dumps(_json(source, model, plan, options), indent=2, ensure_ascii=True) + "\n",
+        ),
         write_text(folder / f"{prefix}.csv", _csv(model)),
         write_text(folder / f"{prefix}-check.csv", _check_csv(model, plan)),
     ]
@@ -170,8 +174,9 @@ class _HalPlan:
         self.model = model
         self.prefix = prefix
         self.options = options
-        self.inputs = {s: options.sensor_signals.get(s, f"thermal-{hal_name(s)}-degc")
-                       for s in model.sensors}
+        self.inputs = {
+            s: options.sensor_signals.get(s, f"thermal-{hal_name(s)}-degc") for s in model.sensors
+        }
         for sensor, signal in self.inputs.items():
             if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_.-]*", signal):
                 raise UserError(f"HAL signal {signal!r} for sensor {sensor!r} is not a HAL name")
@@ -181,8 +186,9 @@ class _HalPlan:
             key = (term.sensor, term.tau_s, term.reference_c)
             if key not in self.nodes:
                 self.nodes.append(key)
-        self.lags = {(s, tau): f"{prefix}-lag{k}" for k, (s, tau, _) in enumerate(self.nodes)
-                     if tau > 0}
+        self.lags = {
+            (s, tau): f"{prefix}-lag{k}" for k, (s, tau, _) in enumerate(self.nodes) if tau > 0
+        }
         self.centres = {node: f"{prefix}-dt{k}" for k, node in enumerate(self.nodes)}
         self.squares = {k: f"{prefix}-sq{k}" for k, t in enumerate(model.terms) if t.power == 2}
         self.sums = [f"{prefix}-sum{k}" for k in range(max(1, len(model.terms) - 1))]
@@ -196,9 +202,19 @@ class _HalPlan:
         self.error_signal = f"{prefix}-error-um"
         self.comp_signal = f"{prefix}-comp-mm"
         self.load_signal = f"{prefix}-load"
-        longest = max([len(n) for n in [*self.lags.values(), *self.centres.values(),
-                                          *self.squares.values(), *self.sums, self.comp,
-                                          *self.to_counts]])
+        longest = max(
+            [
+                len(n)
+                for n in [
+                    *self.lags.values(),
+                    *self.centres.values(),
+                    *self.squares.values(),
+                    *self.sums,
+                    self.comp,
+                    *self.to_counts,
+                ]
+            ]
+        )
         if longest > MAX_INSTANCE_NAME:
             raise UserError(f"HAL prefix {prefix!r} is too long; choose a shorter --hal-prefix")
 
@@ -208,28 +224,30 @@ class _HalPlan:
         o = self.options
         axis = (o.axis or "z").lower()
         ready, gate, counts = self.eoffset_parts
-        return "\n".join([
-            f"# volucal thermal compensation of '{_ascii(self.model.channel)}' applied as the "
-            f"external offset of axis {axis.upper()}",
-            f"# Source after {self.prefix}.hal and after motion is loaded (a later [HAL] "
-            "HALFILE).",
-            f"# The INI needs [AXIS_{axis.upper()}]OFFSET_AV_RATIO (e.g. 0.1): the share of the "
-            "axis' velocity",
-            "# and acceleration that external offsets may use.",
-            f"# Offset = {self.comp_signal} = -predicted error, in counts of {_num(o.count_mm)} mm "
-            "(truncated",
-            "# toward zero: within one count). LinuxCNC applies changes of the counts while the",
-            "# offset is enabled and zeroes its register at each machine start, so the counts are",
-            "# held at 0 until the machine is on and homed, then follow the compensation.",
-            "",
-            f"net {self.prefix}-machine-on motion.motion-enabled => {ready}.in0",
-            f"net {self.prefix}-homed motion.is-all-homed => {ready}.in1",
-            f"net {self.prefix}-eoffset-ready {ready}.out => {gate}.sel "
-            f"axis.{axis}.eoffset-enable",
-            f"net {self.prefix}-eoffset-counts {counts}.out => axis.{axis}.eoffset-counts",
-            f"setp axis.{axis}.eoffset-scale {_num(o.count_mm)}",
-            "",
-        ])
+        return "\n".join(
+            [
+                f"# volucal thermal compensation of '{_ascii(self.model.channel)}' applied as the "
+                f"external offset of axis {axis.upper()}",
+                f"# Source after {self.prefix}.hal and after motion is loaded (a later [HAL] "
+                "HALFILE).",
+                f"# The INI needs [AXIS_{axis.upper()}]OFFSET_AV_RATIO (e.g. 0.1): the share of the "
+                "axis' velocity",
+                "# and acceleration that external offsets may use.",
+                f"# Offset = {self.comp_signal} = -predicted error, in counts of {_num(o.count_mm)} mm "
+                "(truncated",
+                "# toward zero: within one count). LinuxCNC applies changes of the counts while the",
+                "# offset is enabled and zeroes its register at each machine start, so the counts are",
+                "# held at 0 until the machine is on and homed, then follow the compensation.",
+                "",
+                f"net {self.prefix}-machine-on motion.motion-enabled => {ready}.in0",
+                f"net {self.prefix}-homed motion.is-all-homed => {ready}.in1",
+                f"net {self.prefix}-eoffset-ready {ready}.out => {gate}.sel "
+                f"axis.{axis}.eoffset-enable",
+                f"net {self.prefix}-eoffset-counts {counts}.out => axis.{axis}.eoffset-counts",
+                f"setp axis.{axis}.eoffset-scale {_num(o.count_mm)}",
+                "",
+            ]
+        )
 
     def loadrt(self, component: str, names: list[str]) -> list[str]:
         """The ``loadrt`` line, or for a component the configuration loads already, what to add
@@ -237,8 +255,10 @@ class _HalPlan:
         if not names:
             return []
         if component in self.options.loaded:
-            return [f"# {component} is loaded by your configuration: add to its 'loadrt "
-                    f"{component}' line the names {','.join(names)}"]
+            return [
+                f"# {component} is loaded by your configuration: add to its 'loadrt "
+                f"{component}' line the names {','.join(names)}"
+            ]
         return [f"loadrt {component} names={','.join(names)}"]
 
     def gain(self, tau_s: float) -> float:
@@ -289,8 +309,16 @@ class _HalPlan:
         for component, names in loads:
             lines += self.loadrt(component, names)
         lines.append("")
-        order = [self.start, self.hold, *self.lags.values(), *self.centres.values(),
-                 *self.squares.values(), *self.sums, self.comp, *self.to_counts]
+        order = [
+            self.start,
+            self.hold,
+            *self.lags.values(),
+            *self.centres.values(),
+            *self.squares.values(),
+            *self.sums,
+            self.comp,
+            *self.to_counts,
+        ]
         if self.to_counts:
             order += list(self.eoffset_parts)
         lines += [f"addf {name} {o.thread}" for name in order]
@@ -302,14 +330,17 @@ class _HalPlan:
             f"net {self.prefix}-started {self.start}.out => {self.hold}.in",
         ]
         lag_loads = [f"{name}.load" for name in self.lags.values()]
-        lines.append(f"net {self.load_signal} {self.hold}.out" +
-                     (f" => {' '.join(lag_loads)}" if lag_loads else ""))
+        lines.append(
+            f"net {self.load_signal} {self.hold}.out"
+            + (f" => {' '.join(lag_loads)}" if lag_loads else "")
+        )
         lines.append("")
         for sensor, tau, reference in self.nodes:
             centre = self.centres[(sensor, tau, reference)]
             signal = self.inputs[sensor]
-            lines.append(f"# {_ascii(sensor)}" + (f", lag tau = {_num(tau)} s" if tau else
-                                                   ", static"))
+            lines.append(
+                f"# {_ascii(sensor)}" + (f", lag tau = {_num(tau)} s" if tau else ", static")
+            )
             if tau > 0:
                 lag = self.lags[(sensor, tau)]
                 lines += [
@@ -323,11 +354,13 @@ class _HalPlan:
                 f"setp {centre}.gain0 1",
                 f"setp {centre}.gain1 0",
                 f"setp {centre}.offset {_num(-reference)}",
-                f"net {centre}-out {centre}.out" + "".join(
+                f"net {centre}-out {centre}.out"
+                + "".join(
                     f" => {self.squares[k]}.in0 {self.squares[k]}.in1"
                     for k, t in enumerate(m.terms)
-                    if t.power == 2 and (t.sensor, t.tau_s, t.reference_c) == (sensor, tau,
-                                                                                 reference)),
+                    if t.power == 2
+                    and (t.sensor, t.tau_s, t.reference_c) == (sensor, tau, reference)
+                ),
             ]
         for square in self.squares.values():
             lines.append(f"net {square}-out {square}.out")
@@ -338,14 +371,18 @@ class _HalPlan:
         first = self.sums[0]
         if terms:
             index, term = terms[0]
-            lines += [f"setp {first}.gain0 {_num(coefficients[0])}",
-                      f"net {self.term_signal(index, term)} => {first}.in0"]
+            lines += [
+                f"setp {first}.gain0 {_num(coefficients[0])}",
+                f"net {self.term_signal(index, term)} => {first}.in0",
+            ]
         else:
             lines.append(f"setp {first}.gain0 0")
         if len(terms) > 1:
             index, term = terms[1]
-            lines += [f"setp {first}.gain1 {_num(coefficients[1])}",
-                      f"net {self.term_signal(index, term)} => {first}.in1"]
+            lines += [
+                f"setp {first}.gain1 {_num(coefficients[1])}",
+                f"net {self.term_signal(index, term)} => {first}.in1",
+            ]
         else:
             lines.append(f"setp {first}.gain1 0")
         lines.append(f"setp {first}.offset {_num(m.intercept)}")
@@ -394,8 +431,14 @@ def _num(value: float) -> str:
 
 
 def _ascii(text: str) -> str:
-    replaced = (text.replace("µ", "u").replace("°", "deg").replace("τ", "tau")
-                .replace("−", "-").replace("·", "*").replace("²", "^2"))
+    replaced = (
+        text.replace("µ", "u")
+        .replace("°", "deg")
+        .replace("τ", "tau")
+        .replace("−", "-")
+        .replace("·", "*")
+        .replace("²", "^2")
+    )
     return replaced.encode("ascii", "replace").decode("ascii")
 
 
@@ -419,13 +462,18 @@ def check_points(model: ThermalModel) -> list[dict[str, Any]]:
     out = []
     for state in states:
         error = model.predict_steady(state)
-        out.append({"temperatures_degC": state, "error_um": error,
-                    "compensation_mm": -error / 1000.0})
+        out.append(
+            {"temperatures_degC": state, "error_um": error, "compensation_mm": -error / 1000.0}
+        )
     return out
 
 
-def _json(source: ThermalFitResult | ThermalModel, model: ThermalModel, plan: _HalPlan,
-          options: ThermalExportOptions) -> dict[str, Any]:
+def _json(
+    source: ThermalFitResult | ThermalModel,
+    model: ThermalModel,
+    plan: _HalPlan,
+    options: ThermalExportOptions,
+) -> dict[str, Any]:
     from volucal import __version__
 
     data: dict[str, Any] = {
@@ -434,18 +482,22 @@ def _json(source: ThermalFitResult | ThermalModel, model: ThermalModel, plan: _H
         "creator": f"volucal {__version__}",
         "channel": model.channel,
         "sign_convention": SIGN_CONVENTION,
-        "units": {"error": "um", "temperature": "degC", "time_constant": "s",
-                  "compensation": "mm"},
+        "units": {"error": "um", "temperature": "degC", "time_constant": "s", "compensation": "mm"},
         "formula": _ascii(model.formula(10)),
         "filter": FILTER_TEXT,
         "intercept_um": model.intercept,
         "intercept_std_um": model.intercept_std,
         "terms": [
-            {"sensor": t.sensor, "tau_s": t.tau_s, "power": t.power,
-             "reference_degC": t.reference_c, "coefficient": float(c),
-             "coefficient_std": float(s), "coefficient_unit": _ascii(t.unit(model.unit))}
-            for t, c, s in zip(model.terms, model.coefficients, model.coefficient_std,
-                               strict=True)
+            {
+                "sensor": t.sensor,
+                "tau_s": t.tau_s,
+                "power": t.power,
+                "reference_degC": t.reference_c,
+                "coefficient": float(c),
+                "coefficient_std": float(s),
+                "coefficient_unit": _ascii(t.unit(model.unit)),
+            }
+            for t, c, s in zip(model.terms, model.coefficients, model.coefficient_std, strict=True)
         ],
         "covariance": model.covariance.tolist(),
         "sensors": list(model.sensors),
@@ -457,8 +509,7 @@ def _json(source: ThermalFitResult | ThermalModel, model: ThermalModel, plan: _H
             "error_signal_um": plan.error_signal,
             "compensation_signal_mm": plan.comp_signal,
             "load_signal": plan.load_signal,
-            "lowpass_gains": {f"{s} tau {tau:g} s": plan.gain(tau)
-                              for (s, tau) in plan.lags},
+            "lowpass_gains": {f"{s} tau {tau:g} s": plan.gain(tau) for (s, tau) in plan.lags},
         },
         "check_points": check_points(model),
     }
@@ -488,12 +539,23 @@ def _csv(model: ThermalModel) -> str:
         "term,sensor,tau_s,power,reference_degC,coefficient,coefficient_std,coefficient_unit",
         f"intercept,,,,,{_num(model.intercept)},{_num(model.intercept_std)},um",
     ]
-    for k, (term, c, s) in enumerate(zip(model.terms, model.coefficients,
-                                         model.coefficient_std, strict=True), start=1):
-        lines.append(",".join([
-            str(k), _csv_text(term.sensor), _num(term.tau_s), str(term.power),
-            _num(term.reference_c), _num(c), _num(s), _ascii(term.unit(model.unit)),
-        ]))
+    for k, (term, c, s) in enumerate(
+        zip(model.terms, model.coefficients, model.coefficient_std, strict=True), start=1
+    ):
+        lines.append(
+            ",".join(
+                [
+                    str(k),
+                    _csv_text(term.sensor),
+                    _num(term.tau_s),
+                    str(term.power),
+                    _num(term.reference_c),
+                    _num(c),
+                    _num(s),
+                    _ascii(term.unit(model.unit)),
+                ]
+            )
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -520,5 +582,4 @@ def _csv_text(text: str) -> str:
     return f'"{plain}"' if re.search(r'[,"\s]', plain) else plain
 
 
-__all__ = ["ThermalExport", "ThermalExportOptions", "check_points", "export_thermal",
-           "hal_name"]
+__all__ = ["ThermalExport", "ThermalExportOptions", "check_points", "export_thermal", "hal_name"]

@@ -77,15 +77,23 @@ class FormatLimits:
 LIMITS: Mapping[str, FormatLimits] = {
     "linuxcnc": FormatLimits(
         controller="a LinuxCNC COMP_FILE",
-        points=Limit(256, "LinuxCNC motion, EMCMOT_COMP_SIZE = 256 (src/emc/motion/motion.h); "
-                     "more entries are refused ('too many compensation entries')"),
+        points=Limit(
+            256,
+            "LinuxCNC motion, EMCMOT_COMP_SIZE = 256 (src/emc/motion/motion.h); "
+            "more entries are refused ('too many compensation entries')",
+        ),
         points_ceiling=Limit(256, "compiled into LinuxCNC's motion module"),
         value_range=None,
         value_unit="mm",
         value_source="no limit documented; motion stores the offsets as single-precision floats",
         equidistant=False,
-        axis_names=AxisNames(r"\d+", "a joint number from 0 to 15 ([JOINT_n])",
-                             "EMCMOT_MAX_JOINTS = 16 (src/emc/motion/emcmotcfg.h)", 0, 15),
+        axis_names=AxisNames(
+            r"\d+",
+            "a joint number from 0 to 15 ([JOINT_n])",
+            "EMCMOT_MAX_JOINTS = 16 (src/emc/motion/emcmotcfg.h)",
+            0,
+            15,
+        ),
         position_decimals=6,
     ),
     "siemens": FormatLimits(
@@ -98,40 +106,55 @@ LIMITS: Mapping[str, FormatLimits] = {
         "not limited' ($AA_ENC_COMP); the sum of CEC tables on an axis is limited by MD32720 "
         "$MA_CEC_MAX_SUM (configurable)",
         equidistant=True,
-        axis_names=AxisNames(r"[A-Za-z][A-Za-z0-9_]{0,30}", "a machine axis name such as AX1 "
-                             "or X1 (letters, digits and _, starting with a letter, at most 31 "
-                             "characters)", "MD10000 $MN_AXCONF_MACHAX_NAME_TAB"),
+        axis_names=AxisNames(
+            r"[A-Za-z][A-Za-z0-9_]{0,30}",
+            "a machine axis name such as AX1 "
+            "or X1 (letters, digits and _, starting with a letter, at most 31 "
+            "characters)",
+            "MD10000 $MN_AXCONF_MACHAX_NAME_TAB",
+        ),
         position_decimals=6,
     ),
     "fanuc": FormatLimits(
         controller="Fanuc pitch error compensation",
-        points=Limit(1024, "point numbers 0 to 1023 (parameters 3620-3622, Series 0i/16i/18i)",
-                     False),
-        points_ceiling=Limit(1024, "point numbers 0 to 1023, parameters 3620-3622 on Series "
-                             "0i/16i/18i", False),
+        points=Limit(
+            1024, "point numbers 0 to 1023 (parameters 3620-3622, Series 0i/16i/18i)", False
+        ),
+        points_ceiling=Limit(
+            1024, "point numbers 0 to 1023, parameters 3620-3622 on Series 0i/16i/18i", False
+        ),
         value_range=(-128, 127),
         value_unit="detection units x parameter 3623 per point",
         value_source="per-point setting range -128 to 127, magnification 3623 up to 100",
         equidistant=True,
-        axis_names=AxisNames(r"\d+", "a controlled axis number from 1 to 32",
-                             "the axis number of N<parameter>A<axis>P<value> records", 1, 32),
+        axis_names=AxisNames(
+            r"\d+",
+            "a controlled axis number from 1 to 32",
+            "the axis number of N<parameter>A<axis>P<value> records",
+            1,
+            32,
+        ),
         position_decimals=None,
     ),
     "heidenhain": FormatLimits(
         controller="a Heidenhain .COM table",
-        points=Limit(256, "TNC 407/415/425 technical manual, module 9095 error 3: 'more than "
-                     "256 entries'"),
+        points=Limit(
+            256, "TNC 407/415/425 technical manual, module 9095 error 3: 'more than 256 entries'"
+        ),
         points_ceiling=Limit(256, "module 9095 refuses a .COM of more than 256 entries"),
         value_range=None,
         value_unit="mm",
         value_source="no limit found in the manuals consulted; values are written with four "
         "decimals",
         equidistant=False,
-        axis_names=AxisNames(r"[A-Za-z][A-Za-z0-9_]{0,10}", "an axis key such as X or X2 "
-                             "(letters, digits and _, "
-                             "starting with a letter, at most 11 characters)",
-                             "CfgAxes/axisList keys (MANUALplus 620 / TNC 6xx manual)",
-                             file_suffix=".COM"),
+        axis_names=AxisNames(
+            r"[A-Za-z][A-Za-z0-9_]{0,10}",
+            "an axis key such as X or X2 "
+            "(letters, digits and _, "
+            "starting with a letter, at most 11 characters)",
+            "CfgAxes/axisList keys (MANUALplus 620 / TNC 6xx manual)",
+            file_suffix=".COM",
+        ),
         position_decimals=4,
     ),
     "isg": FormatLimits(
@@ -142,15 +165,22 @@ LIMITS: Mapping[str, FormatLimits] = {
         value_unit="0.1 um",
         value_source="kw.ssfk entries are SGN32 in 0.1 um (Beckhoff TF5200 axis compensation)",
         equidistant=True,
-        axis_names=AxisNames(r"\d+", "a logical axis number (P-AXIS-00016) from 1 to 65535",
-                             "kopf.log_achs_nr (Beckhoff TF5200)", 1, 65535),
+        axis_names=AxisNames(
+            r"\d+",
+            "a logical axis number (P-AXIS-00016) from 1 to 65535",
+            "kopf.log_achs_nr (Beckhoff TF5200)",
+            1,
+            65535,
+        ),
         position_decimals=4,  # 0.1 µm
     ),
     "csv": FormatLimits("generic CSV", None, None, None, "um", "no controller", False, None, 6),
-    "json": FormatLimits("generic JSON", None, None, None, "um", "no controller", False, None,
-                         None),
-    "gcode": FormatLimits("an NC program", None, None, None, "mm", "no controller", False, None,
-                          None),
+    "json": FormatLimits(
+        "generic JSON", None, None, None, "um", "no controller", False, None, None
+    ),
+    "gcode": FormatLimits(
+        "an NC program", None, None, None, "mm", "no controller", False, None, None
+    ),
 }
 
 
@@ -168,8 +198,11 @@ def point_limit(format: str, max_points: int | None) -> int:
     limits = limits_of(format)
     if max_points is None:
         return int(limits.points.value) if limits.points else MAX_TABLE_NODES
-    if isinstance(max_points, bool) or not isinstance(max_points, int | np.integer) or \
-            max_points < 2:
+    if (
+        isinstance(max_points, bool)
+        or not isinstance(max_points, int | np.integer)
+        or max_points < 2
+    ):
         raise UserError(
             f"--max-points must be a whole number of at least 2 (a table needs two points), got "
             f"{max_points!r}"
@@ -198,14 +231,14 @@ def check_axis_names(format: str, names: Mapping[str, str] | None) -> None:
             if valid and spec.low is not None:
                 valid = spec.low <= int(name) <= (spec.high or spec.low)
             if not valid:
-                raise UserError(
-                    f"{what}={name!r}: the {format} export needs {spec.description}"
-                )
+                raise UserError(f"{what}={name!r}: the {format} export needs {spec.description}")
             if spec.file_suffix:
                 safe_file_name(name + spec.file_suffix, f"{what}={name!r}:")
         if name in seen:
-            raise UserError(f"--axis-names: {seen[name]} and {axis} are both {name!r}; each axis "
-                            "needs its own name")
+            raise UserError(
+                f"--axis-names: {seen[name]} and {axis} are both {name!r}; each axis "
+                "needs its own name"
+            )
         seen[name] = axis
 
 
@@ -227,8 +260,10 @@ def check_sizes(
                     f"{_fit(high - low, MAX_TABLE_NODES):g} mm"
                 )
     if grid_spacing_mm is not None:
-        counts = [node_count(low, high, grid_spacing_mm, "--grid-spacing")
-                  for low, high in extents.values()]
+        counts = [
+            node_count(low, high, grid_spacing_mm, "--grid-spacing")
+            for low, high in extents.values()
+        ]
         total = math.prod(counts)
         if total > MAX_GRID_POINTS:
             raise UserError(
@@ -246,8 +281,10 @@ def grid_spacing_fit(extents: Mapping[str, tuple[float, float]]) -> float:
     volume = math.prod(s for s in spans if s > 0) or 1.0
     dimensions = sum(1 for s in spans if s > 0) or 1
     tenths = max(1, math.floor((volume / MAX_GRID_POINTS) ** (1 / dimensions) * 10))
-    while math.prod(node_count(0.0, s, tenths / 10, "--grid-spacing") for s in spans) > \
-            MAX_GRID_POINTS:
+    while (
+        math.prod(node_count(0.0, s, tenths / 10, "--grid-spacing") for s in spans)
+        > MAX_GRID_POINTS
+    ):
         tenths += 1
     return tenths / 10
 
@@ -276,8 +313,11 @@ def check_positions(format: str, label: str, positions_mm: ArrayLike) -> None:
     bad = np.flatnonzero(~np.isfinite(positions))
     if bad.size:
         raise TableLimitError(f"{label}: position {bad[0]} is {positions[bad[0]]} (not a number)")
-    written = positions if limits.position_decimals is None else np.round(
-        positions, limits.position_decimals)
+    written = (
+        positions
+        if limits.position_decimals is None
+        else np.round(positions, limits.position_decimals)
+    )
     steps = np.diff(written)
     bad = np.flatnonzero(steps <= 0)
     if bad.size:
@@ -321,8 +361,9 @@ def check_values(format: str, label: str, positions_mm: ArrayLike, values: Array
         )
 
 
-def check_count(format: str, label: str, count: int, limit: int, span_mm: float,
-                spacing_mm: float) -> None:
+def check_count(
+    format: str, label: str, count: int, limit: int, span_mm: float, spacing_mm: float
+) -> None:
     """Raise :class:`TableLimitError` when ``count`` points exceed ``limit``, with the spacing
     that would fit."""
     if count <= limit:
@@ -332,6 +373,10 @@ def check_count(format: str, label: str, count: int, limit: int, span_mm: float,
     raise TableLimitError(
         f"{label} needs {count} points at {spacing_mm:g} mm spacing but {limits.controller} "
         f"accepts at most {limit}; export with a spacing of at least {_fit(span_mm, limit):g} mm "
-        "(--spacing)" + (", or raise the controller's limit and pass it with --max-points"
-                         if configurable else "")
+        "(--spacing)"
+        + (
+            ", or raise the controller's limit and pass it with --max-points"
+            if configurable
+            else ""
+        )
     )

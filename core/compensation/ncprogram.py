@@ -656,8 +656,11 @@ class _Rewriter:
             size = np.max(np.abs(command - nominal), axis=1) * UM_PER_MM
             worst = int(np.argmax(size)) if len(size) else 0
             if len(size) and not float(size[worst]) <= largest[0]:  # NaN counts as largest
-                point = (float(nominal[worst, 0]), float(nominal[worst, 1]),
-                         float(nominal[worst, 2]))
+                point = (
+                    float(nominal[worst, 0]),
+                    float(nominal[worst, 1]),
+                    float(nominal[worst, 2]),
+                )
                 largest = (float(size[worst]), point, block.number)
             keep = self._keep(event.move, nominal, command)
             offset = self.work_offset(work) + g92_controller

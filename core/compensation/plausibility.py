@@ -75,8 +75,9 @@ class LargeCorrectionError(UserError):
         How many points exceed the limit in all.
     """
 
-    def __init__(self, format: str, limit_um: float, corrections: tuple[LargeCorrection, ...],
-                 count: int) -> None:
+    def __init__(
+        self, format: str, limit_um: float, corrections: tuple[LargeCorrection, ...], count: int
+    ) -> None:
         self.format = format
         self.limit_um = limit_um
         self.corrections = corrections
@@ -97,8 +98,12 @@ def check_limit(max_correction_um: float | None) -> float | None:
     if max_correction_um is None:
         return None
     value = max_correction_um
-    if isinstance(value, bool) or not isinstance(value, int | float) or \
-            not math.isfinite(value) or value <= 0:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value <= 0
+    ):
         raise UserError(
             f"--max-correction-um must be a positive number of µm, got {max_correction_um!r} "
             "(--allow-large-corrections removes the limit)"
@@ -106,8 +111,9 @@ def check_limit(max_correction_um: float | None) -> float | None:
     return float(value)
 
 
-def check_plausible(format: str, applied: Iterable[AppliedValues],
-                    max_correction_um: float | None) -> None:
+def check_plausible(
+    format: str, applied: Iterable[AppliedValues], max_correction_um: float | None
+) -> None:
     """Raise :class:`TableLimitError` for a value that is not a number, and
     :class:`LargeCorrectionError` for values beyond ``max_correction_um`` (None: no limit)."""
     limit = check_limit(max_correction_um)
@@ -130,17 +136,20 @@ def check_plausible(format: str, applied: Iterable[AppliedValues],
         count += rows.size
         for row in rows[np.argsort(-size[rows])][:KEPT]:
             column = int(np.argmax(np.abs(flat[row])))
-            found.append(LargeCorrection(item.label, _where(item, int(row)),
-                                         float(flat[row, column])))
+            found.append(
+                LargeCorrection(item.label, _where(item, int(row)), float(flat[row, column]))
+            )
     if found and limit is not None:
         found.sort(key=lambda c: -abs(c.value_um))
         raise LargeCorrectionError(format, limit, tuple(found[:KEPT]), count)
 
 
-def table_values(label: str, axis: str, positions_mm: ArrayLike,
-                 values_um: ArrayLike) -> AppliedValues:
-    return AppliedValues(label, axis, np.asarray(positions_mm, dtype=float),
-                         np.asarray(values_um, dtype=float))
+def table_values(
+    label: str, axis: str, positions_mm: ArrayLike, values_um: ArrayLike
+) -> AppliedValues:
+    return AppliedValues(
+        label, axis, np.asarray(positions_mm, dtype=float), np.asarray(values_um, dtype=float)
+    )
 
 
 def _where(item: AppliedValues, row: int) -> str:

@@ -32,14 +32,40 @@ from .source import SourceText
 from .units import POSITION_FACTOR, normalise_unit
 
 PRESET = "aerotech-accuracy2d"
-COLUMNS = ("Position1", "LaserData1", "Position2", "LaserData2", "AirTemp", "MatTemp",
-           "Pressure", "Humidity")
+COLUMNS = (
+    "Position1",
+    "LaserData1",
+    "Position2",
+    "LaserData2",
+    "AirTemp",
+    "MatTemp",
+    "Pressure",
+    "Humidity",
+)
 DATA_MARKER = ":START"
 #: Header keys kept as the grid's metadata.
-KEPT = ("JobName", "SerialNum", "DateTime", "OperatorName", "LaserID", "StageLabel",
-        "CoefficientOfThermalExpansion", "ControllerVerison", "BiDirectional", "CountsPerUnit",
-        "TestType", "OpticLocation", "Payload", "TestOrientation", "MotionDirection",
-        "AxisIndex", "HomeOffset", "StageSerialNumber", "StepSize", "TestLength")
+KEPT = (
+    "JobName",
+    "SerialNum",
+    "DateTime",
+    "OperatorName",
+    "LaserID",
+    "StageLabel",
+    "CoefficientOfThermalExpansion",
+    "ControllerVerison",
+    "BiDirectional",
+    "CountsPerUnit",
+    "TestType",
+    "OpticLocation",
+    "Payload",
+    "TestOrientation",
+    "MotionDirection",
+    "AxisIndex",
+    "HomeOffset",
+    "StageSerialNumber",
+    "StepSize",
+    "TestLength",
+)
 
 
 def is_accuracy2d(source: SourceText) -> bool:
@@ -63,8 +89,11 @@ def _header(source: SourceText) -> tuple[dict[str, tuple[str, int]], int]:
         key, colon, value = stripped.partition(" : ")
         if colon and key and " " not in key:
             fields.setdefault(key, (value.strip(), number))
-    raise source.error(f"no {DATA_MARKER!r} line: the file is cut short before its data or is "
-                       "not an Accuracy2D data file", source.last_line)
+    raise source.error(
+        f"no {DATA_MARKER!r} line: the file is cut short before its data or is "
+        "not an Accuracy2D data file",
+        source.last_line,
+    )
 
 
 def _pair(value: str) -> list[str]:
@@ -82,8 +111,11 @@ def _set_file_unit(path: Path) -> tuple[str, str] | None:
         if colon and key.strip() == "PositionUnitName":
             unit = normalise_unit(value.strip()).lower()
             if unit not in POSITION_FACTOR:
-                raise text.error(f"PositionUnitName {value.strip()!r} is not a length unit "
-                                 f"volucal knows ({', '.join(POSITION_FACTOR)})", number)
+                raise text.error(
+                    f"PositionUnitName {value.strip()!r} is not a length unit "
+                    f"volucal knows ({', '.join(POSITION_FACTOR)})",
+                    number,
+                )
             return unit, f"PositionUnitName in {set_path.name}, line {number}"
     return None
 
@@ -104,7 +136,9 @@ def _axis_names(
         return (letters[0], letters[1]), f"SerialNum {serial!r} (line {line})"
     raise source.error(
         f"cannot tell which of Axis 1 and Axis 2 is X: SerialNum {serial!r} does not end in "
-        "X… and Y…; give the axes (--axes XY when Axis 1 is X, --axes YX otherwise)", line)
+        "X… and Y…; give the axes (--axes XY when Axis 1 is X, --axes YX otherwise)",
+        line,
+    )
 
 
 def _upper_axis(fields: dict[str, tuple[str, int]], names: tuple[str, str]) -> str | None:
@@ -123,11 +157,14 @@ def _expected_count(source: SourceText, fields: dict[str, tuple[str, int]]) -> i
         steps = [float(v) for v in _pair(fields["StepSize"][0])]
         lengths = [float(v) for v in _pair(fields["TestLength"][0])]
     except ValueError:
-        raise source.error("StepSize/TestLength: expected two numbers separated by ';'",
-                           fields["StepSize"][1]) from None
+        raise source.error(
+            "StepSize/TestLength: expected two numbers separated by ';'", fields["StepSize"][1]
+        ) from None
     if len(steps) != 2 or len(lengths) != 2 or min(steps) <= 0:
-        raise source.error("StepSize/TestLength: expected two positive numbers separated by ';'",
-                           fields["StepSize"][1])
+        raise source.error(
+            "StepSize/TestLength: expected two positive numbers separated by ';'",
+            fields["StepSize"][1],
+        )
     counts = [round(abs(length) / step) + 1 for length, step in zip(lengths, steps, strict=True)]
     return counts[0] * counts[1]
 
@@ -166,51 +203,79 @@ def read_accuracy2d(
     if test_type is None or test_type[0] != "Accuracy2D":
         raise source.error(
             f"TestType is {test_type[0]!r}, not 'Accuracy2D': read this file with a column map"
-            if test_type else "no 'TestType : Accuracy2D' line: not an Accuracy2D data file",
-            test_type[1] if test_type else 1)
+            if test_type
+            else "no 'TestType : Accuracy2D' line: not an Accuracy2D data file",
+            test_type[1] if test_type else 1,
+        )
     header_line = next((n for n in range(start - 1, 0, -1) if source.lines[n - 1].strip()), 1)
     found = tuple(source.lines[header_line - 1].split())
     if found != COLUMNS:
-        raise source.error(f"expected the columns {' '.join(COLUMNS)}, found "
-                           f"{' '.join(found) or 'nothing'}", header_line)
+        raise source.error(
+            f"expected the columns {' '.join(COLUMNS)}, found {' '.join(found) or 'nothing'}",
+            header_line,
+        )
 
     from_set = _set_file_unit(path)
     if from_set and position_unit and normalise_unit(position_unit).lower() != from_set[0]:
-        raise FormatError(path, f"the position unit is given as {position_unit!r} but "
-                          f"{from_set[1]} says {from_set[0]!r}")
+        raise FormatError(
+            path,
+            f"the position unit is given as {position_unit!r} but "
+            f"{from_set[1]} says {from_set[0]!r}",
+        )
     if from_set:
         unit, unit_note = from_set
     elif position_unit:
         unit, unit_note = normalise_unit(position_unit).lower(), "given"
     else:
         raise FormatError(
-            path, f"no unit for the positions: the data file does not state it and its .set "
+            path,
+            f"no unit for the positions: the data file does not state it and its .set "
             f"file ({path.with_suffix('.set').name}) is not beside it; give it (--position-unit "
-            "mm)")
+            "mm)",
+        )
 
     names, axes_note = _axis_names(source, fields, axes)
     upper = _upper_axis(fields, names) if upper_axis == "auto" else upper_axis
     first, second = ("x", "y") if names == ("X", "Y") else ("y", "x")
-    columns = GridColumnMap(**{
-        first: "Position1", f"measured_{first}": "LaserData1",
-        second: "Position2", f"measured_{second}": "LaserData2",
-        "air_temp": "AirTemp", "material_temp": "MatTemp", "pressure": "Pressure",
-        "humidity": "Humidity",
-    })
+    columns = GridColumnMap(
+        **{
+            first: "Position1",
+            f"measured_{first}": "LaserData1",
+            second: "Position2",
+            f"measured_{second}": "LaserData2",
+            "air_temp": "AirTemp",
+            "material_temp": "MatTemp",
+            "pressure": "Pressure",
+            "humidity": "Humidity",
+        }
+    )
     layout_note = "Aerotech Accuracy2D layout"
     fmt = GridFormat(
-        columns=columns, position_unit=unit, temperature_unit="C", pressure_unit="mmHg",
-        delimiter="whitespace", data_marker=DATA_MARKER, end_marker=":END",
-        upper_axis=upper, complete=False,
-        unit_notes={"position": unit_note, "temperature": layout_note,
-                    "pressure": f"{layout_note}; the vendor's .cal header states mmHg"},
+        columns=columns,
+        position_unit=unit,
+        temperature_unit="C",
+        pressure_unit="mmHg",
+        delimiter="whitespace",
+        data_marker=DATA_MARKER,
+        end_marker=":END",
+        upper_axis=upper,
+        complete=False,
+        unit_notes={
+            "position": unit_note,
+            "temperature": layout_note,
+            "pressure": f"{layout_note}; the vendor's .cal header states mmHg",
+        },
     )
     metadata = {key: fields[key][0] for key in KEPT if key in fields}
     metadata["preset"] = PRESET
     metadata["axes"] = f"Axis 1 = {names[0]}, Axis 2 = {names[1]} ({axes_note})"
     metadata["upper_axis"] = (
-        f"{upper} (TestOrientation)" if upper_axis == "auto" and upper else
-        "not stated (TestOrientation)" if upper_axis == "auto" else f"{upper} (given)")
+        f"{upper} (TestOrientation)"
+        if upper_axis == "auto" and upper
+        else "not stated (TestOrientation)"
+        if upper_axis == "auto"
+        else f"{upper} (given)"
+    )
     axis_index = _pair(fields.get("AxisIndex", ("", 0))[0])
     if len(axis_index) == 2 and all(v.isdigit() for v in axis_index):
         metadata[f"axis_number_{names[0]}"] = axis_index[0]
@@ -222,9 +287,14 @@ def read_accuracy2d(
         where = f"lines {fields['StepSize'][1]} and {fields['TestLength'][1]}"
         raise source.error(
             f"{grid.count} readings where StepSize and TestLength ({where}) announce "
-            f"{expected}: " + ("the file is cut short here" if grid.count < expected else
-                               "rows are repeated or the header is wrong"),
-            int(grid.file_lines[-1]) if grid.file_lines is not None else source.last_line)
+            f"{expected}: "
+            + (
+                "the file is cut short here"
+                if grid.count < expected
+                else "rows are repeated or the header is wrong"
+            ),
+            int(grid.file_lines[-1]) if grid.file_lines is not None else source.last_line,
+        )
     # With the count right, every node must still be there (a repeated row hides a gap).
     check_grid(source, grid, fmt.node_tolerance_mm, complete=True)
     return grid

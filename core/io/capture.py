@@ -126,8 +126,11 @@ def read_capture(
     if raw.lstrip().startswith(b"HEADER::"):
         return _read_binary(path, raw, fmt)
     if sample_rate_hz is not None and not 0 < sample_rate_hz <= MAX_SAMPLE_RATE_HZ:
-        raise FormatError(path, f"the sample rate {sample_rate_hz!r} Hz is outside "
-                          f"0…{MAX_SAMPLE_RATE_HZ:g} Hz (capture_rate_hz)")
+        raise FormatError(
+            path,
+            f"the sample rate {sample_rate_hz!r} Hz is outside "
+            f"0…{MAX_SAMPLE_RATE_HZ:g} Hz (capture_rate_hz)",
+        )
     return _read_text(path, raw, fmt, sample_rate_hz, chunk_bytes)
 
 
@@ -155,8 +158,10 @@ def _read_binary(path: Path, raw: bytes, fmt: TableFormat) -> Capture:
         raise head.error("the header has no 'Sample count:'", head.last_line)
     count = parse_int(by_name["sample count"], head, lines["sample count"], "Sample count")
     if not 1 <= count <= MAX_SAMPLES:
-        raise head.error(f"Sample count {count} is outside 1…{size_text(MAX_SAMPLES)} "
-                         "(docs/formats.md, Limits)", lines["sample count"])
+        raise head.error(
+            f"Sample count {count} is outside 1…{size_text(MAX_SAMPLES)} (docs/formats.md, Limits)",
+            lines["sample count"],
+        )
     channels = tuple(by_name.get("channels", "deviation").split())
     unknown = [c for c in channels if c not in CHANNELS]
     if unknown or len(set(channels)) != len(channels) or "deviation" not in channels:
@@ -168,17 +173,17 @@ def _read_binary(path: Path, raw: bytes, fmt: TableFormat) -> Capture:
     if "sample rate" in by_name:
         rate = parse_float(by_name["sample rate"], head, lines["sample rate"], "Sample rate")
         if not 0 < rate <= MAX_SAMPLE_RATE_HZ:
-            raise head.error(f"Sample rate must lie in 0…{MAX_SAMPLE_RATE_HZ:g} Hz",
-                             lines["sample rate"])
+            raise head.error(
+                f"Sample rate must lie in 0…{MAX_SAMPLE_RATE_HZ:g} Hz", lines["sample rate"]
+            )
     elif "time_s" not in channels:
-        raise head.error("the header needs 'Sample rate:' (Hz) or a time_s channel",
-                         head.last_line)
+        raise head.error("the header needs 'Sample rate:' (Hz) or a time_s channel", head.last_line)
     start = 0.0
     if "start time" in by_name:
         start = parse_time(by_name["start time"], head, lines["start time"], "Start time")
 
     # the size the header claims is checked against the bytes there before anything is read
-    body = raw[marker + len(b"\nData:"):]
+    body = raw[marker + len(b"\nData:") :]
     body = body[2:] if body.startswith(b"\r\n") else body[1:] if body.startswith(b"\n") else body
     size = count * len(channels) * 8
     trailer = body[size:].rstrip(b" \t\r\n")
@@ -196,8 +201,9 @@ def _read_binary(path: Path, raw: bytes, fmt: TableFormat) -> Capture:
     finite = np.isfinite(values)
     if not finite.all():
         sample = int(np.argwhere(~finite)[0][0])
-        raise head.error(f"sample {sample + 1} holds a value that is not a finite number",
-                         data_line)
+        raise head.error(
+            f"sample {sample + 1} holds a value that is not a finite number", data_line
+        )
     column = {name: values[:, i] for i, name in enumerate(channels)}
     if "time_s" in column:
         time = column["time_s"].copy()
@@ -215,40 +221,60 @@ def _read_binary(path: Path, raw: bytes, fmt: TableFormat) -> Capture:
         header=header,
         raw=raw,
     )
-    _check_samples(head, capture, lambda _: data_line,
-                   lambda index, what: f"sample {index + 1}: {what}")
+    _check_samples(
+        head, capture, lambda _: data_line, lambda index, what: f"sample {index + 1}: {what}"
+    )
     return capture
 
 
-def _binary_unit(head: SourceText, by_name: dict[str, str], lines: dict[str, int],
-                 fmt: TableFormat) -> str:
+def _binary_unit(
+    head: SourceText, by_name: dict[str, str], lines: dict[str, int], fmt: TableFormat
+) -> str:
     declared = normalise_unit(fmt.deviation_unit) if fmt.deviation_unit else None
     if "units" not in by_name:
         if declared is None:
-            raise head.error("the header has no 'Units:' line and no deviation unit is given: "
-                             "give deviation_unit in the plan's [[line]] (um, nm, mm, urad, "
-                             "arcsec, …)", head.last_line)
+            raise head.error(
+                "the header has no 'Units:' line and no deviation unit is given: "
+                "give deviation_unit in the plan's [[line]] (um, nm, mm, urad, "
+                "arcsec, …)",
+                head.last_line,
+            )
         if declared not in DEVIATION_FACTOR:
             raise head.error(f"deviation unit {declared!r} is not supported", head.last_line)
         return declared
     unit = normalise_unit(by_name["units"])
     if unit not in DEVIATION_FACTOR:
-        raise head.error(f"Units: not a supported deviation unit; use one of "
-                         f"{choices(tuple(DEVIATION_FACTOR))}", lines["units"])
+        raise head.error(
+            f"Units: not a supported deviation unit; use one of {choices(tuple(DEVIATION_FACTOR))}",
+            lines["units"],
+        )
     if declared is not None and declared != unit:
-        raise head.error(f"the file's Units: is {unit!r} but the deviation unit given is "
-                         f"{fmt.deviation_unit!r}; correct one of them", lines["units"])
+        raise head.error(
+            f"the file's Units: is {unit!r} but the deviation unit given is "
+            f"{fmt.deviation_unit!r}; correct one of them",
+            lines["units"],
+        )
     return unit
 
 
-def _check_samples(source: SourceText, capture: Capture, where: Callable[[int], int],
-                   label: Callable[[int, str], str]) -> None:
+def _check_samples(
+    source: SourceText,
+    capture: Capture,
+    where: Callable[[int], int],
+    label: Callable[[int, str], str],
+) -> None:
     """Positions, deviations and times a laser can produce, and time that never goes back;
     ``where(i)`` is the line to name for sample i, ``label(i, what)`` how to call its value."""
     unit = capture.unit or "um"
-    checks = [("deviation", capture.deviation * DEVIATION_FACTOR[unit], MAX_ABS_DEVIATION,
-               "µrad" if unit in ANGLE_UNITS else "µm"),
-              ("time", capture.time_s, MAX_ABS_TIME_S, "s")]
+    checks = [
+        (
+            "deviation",
+            capture.deviation * DEVIATION_FACTOR[unit],
+            MAX_ABS_DEVIATION,
+            "µrad" if unit in ANGLE_UNITS else "µm",
+        ),
+        ("time", capture.time_s, MAX_ABS_TIME_S, "s"),
+    ]
     if capture.position_mm is not None:
         checks.append(("position", capture.position_mm, MAX_ABS_POSITION_MM, "mm"))
     for what, values, limit, symbol in checks:
@@ -256,13 +282,20 @@ def _check_samples(source: SourceText, capture: Capture, where: Callable[[int], 
             bad = np.flatnonzero(~(np.abs(values) <= limit))
         if bad.size:
             index = int(bad[0])
-            check_magnitude(float(values[index]), limit, source, where(index),
-                            label(index, f"{what} ({symbol})"))
+            check_magnitude(
+                float(values[index]),
+                limit,
+                source,
+                where(index),
+                label(index, f"{what} ({symbol})"),
+            )
     back = np.flatnonzero(np.diff(capture.time_s) < 0)
     if back.size:
         index = int(back[0]) + 1
-        raise source.error(f"{label(index, 'time')} goes back: the samples of a capture follow "
-                           "each other", where(index))
+        raise source.error(
+            f"{label(index, 'time')} goes back: the samples of a capture follow each other",
+            where(index),
+        )
 
 
 # ---- text --------------------------------------------------------------------------------
@@ -281,14 +314,17 @@ def _read_text(
             break
         head_end = cut + 1
     head = SourceText.from_bytes(path, raw[:head_end])
-    layout = find_layout(head, delimiter=fmt.delimiter, data_marker=fmt.data_marker,
-                         comment=fmt.comment)
+    layout = find_layout(
+        head, delimiter=fmt.delimiter, data_marker=fmt.data_marker, comment=fmt.comment
+    )
     if layout.header_line is None:
-        raise head.error("a CSV capture needs a header row naming its columns (time, position, "
-                         "deviation)", layout.first_data_line)
-    columns, header_units, shown = resolve_columns(head, layout, fmt.columns,
-                                                   ("time", "position", "deviation"),
-                                                   ("deviation",))
+        raise head.error(
+            "a CSV capture needs a header row naming its columns (time, position, deviation)",
+            layout.first_data_line,
+        )
+    columns, header_units, shown = resolve_columns(
+        head, layout, fmt.columns, ("time", "position", "deviation"), ("deviation",)
+    )
     header_line = layout.header_line
     units: dict[str, str | None] = {}
     tables = {"time": TIME_FACTOR, "position": POSITION_FACTOR, "deviation": DEVIATION_FACTOR}
@@ -299,21 +335,27 @@ def _read_text(
         declared = normalise_unit(declared_raw) if declared_raw else None
         from_header = header_units.get(key)
         if declared and from_header and declared != from_header:
-            raise head.error(f"the {key} unit is declared as {declared_raw!r} but the header "
-                             f"{shown[key]} says {from_header!r}; correct one of them",
-                             header_line)
+            raise head.error(
+                f"the {key} unit is declared as {declared_raw!r} but the header "
+                f"{shown[key]} says {from_header!r}; correct one of them",
+                header_line,
+            )
         unit = declared or from_header
         if unit is None and key == "position":
             unit = fmt.position_unit_default
         if unit is None:
             example = {"time": "s", "position": "mm"}.get(key, "um")
-            raise head.error(f"the {key} column {shown[key]} has no unit and volucal does not "
-                             f"assume one: give {key}_unit in the plan's [[line]] or write it "
-                             f"in the header, e.g. {key}_{example}",
-                             header_line)
+            raise head.error(
+                f"the {key} column {shown[key]} has no unit and volucal does not "
+                f"assume one: give {key}_unit in the plan's [[line]] or write it "
+                f"in the header, e.g. {key}_{example}",
+                header_line,
+            )
         if unit not in tables[key]:
-            raise head.error(f"{key} unit {unit!r} is not supported; use one of "
-                             f"{choices(tuple(tables[key]))}", header_line)
+            raise head.error(
+                f"{key} unit {unit!r} is not supported; use one of {choices(tuple(tables[key]))}",
+                header_line,
+            )
         units[key] = unit
     if "time" not in columns and not sample_rate_hz:
         raise head.error(
@@ -344,16 +386,23 @@ def _read_text(
             with warnings.catch_warnings():
                 # a chunk of only blank or comment lines is fine (the file's tail)
                 warnings.simplefilter("ignore", UserWarning)
-                values = np.loadtxt(StringIO(text), delimiter=delimiter, usecols=usecols,
-                                    comments=fmt.comment, ndmin=2, dtype=float)
+                values = np.loadtxt(
+                    StringIO(text),
+                    delimiter=delimiter,
+                    usecols=usecols,
+                    comments=fmt.comment,
+                    ndmin=2,
+                    dtype=float,
+                )
         except ValueError:
             raise _bad_line(head, text, first_line, layout, usecols, fmt.comment) from None
         if not np.isfinite(values).all():
             raise _bad_line(head, text, first_line, layout, usecols, fmt.comment)
         rows += values.shape[0]
         if rows > MAX_SAMPLES:
-            raise head.error(f"more than {size_text(MAX_SAMPLES)} rows (docs/formats.md, "
-                             "Limits)", first_line)
+            raise head.error(
+                f"more than {size_text(MAX_SAMPLES)} rows (docs/formats.md, Limits)", first_line
+            )
         blocks.append(values)
         first_line += text.count("\n")
         position = cut
@@ -378,9 +427,12 @@ def _read_text(
         header={"columns": " ".join(layout.header)},
         raw=raw,
     )
-    _check_samples(head, capture,
-                   lambda index: _line_of_row(raw, layout.first_data_line, index, fmt.comment),
-                   lambda _, what: what)
+    _check_samples(
+        head,
+        capture,
+        lambda index: _line_of_row(raw, layout.first_data_line, index, fmt.comment),
+        lambda _, what: what,
+    )
     return capture
 
 
@@ -417,7 +469,11 @@ def _line_of_row(raw: bytes, first_line: int, row: int, comment: str) -> int:
 
 
 def _first_bad_line(
-    source: SourceText, text: str, first_line: int, layout: Layout, usecols: list[int],
+    source: SourceText,
+    text: str,
+    first_line: int,
+    layout: Layout,
+    usecols: list[int],
     comment: str,
 ) -> FormatError | None:
     """The error of the first line of a chunk that does not hold, in strict terms, as many
@@ -429,8 +485,10 @@ def _first_bad_line(
         fields_ = split_fields(stripped, layout.delimiter)
         number = first_line + offset
         if not row_fits(layout, len(fields_), max(usecols) + 1):
-            return source.error(f"expected {layout.field_count} fields as in the header, found "
-                                f"{len(fields_)}", number)
+            return source.error(
+                f"expected {layout.field_count} fields as in the header, found {len(fields_)}",
+                number,
+            )
         for index in usecols:
             try:
                 parse_float(fields_[index], source, number, f"column {index + 1}")
@@ -440,7 +498,11 @@ def _first_bad_line(
 
 
 def _bad_line(
-    source: SourceText, text: str, first_line: int, layout: Layout, usecols: list[int],
+    source: SourceText,
+    text: str,
+    first_line: int,
+    layout: Layout,
+    usecols: list[int],
     comment: str,
 ) -> FormatError:
     found = _first_bad_line(source, text, first_line, layout, usecols, comment)
@@ -528,8 +590,10 @@ def capture_line_data(
     if capture.position_mm is None:
         return _bin_times(capture, step_s)
     if step_mm is None or not (math.isfinite(step_mm) and step_mm >= MIN_TARGET_SPACING_MM):
-        raise ValueError(f"a position capture needs a step_mm (capture_step_mm) of at least "
-                         f"{MIN_TARGET_SPACING_MM} mm")
+        raise ValueError(
+            f"a position capture needs a step_mm (capture_step_mm) of at least "
+            f"{MIN_TARGET_SPACING_MM} mm"
+        )
     if window_mm is not None and not (math.isfinite(window_mm) and window_mm > 0):
         raise ValueError("capture_window_mm must be a positive number")
     return _bin_positions(capture, step_mm, window_mm if window_mm is not None else step_mm / 2)
@@ -543,7 +607,8 @@ def _bin_positions(capture: Capture, step_mm: float, window_mm: float) -> LineDa
         raise ValueError(
             f"the capture spans {float(np.ptp(relative)):g} mm, {span:.3g} steps of {step_mm:g} "
             f"mm: more than the {size_text(MAX_TARGETS)} targets a line may hold "
-            "(docs/formats.md, Limits); check capture_step_mm and the position channel")
+            "(docs/formats.md, Limits); check capture_step_mm and the position channel"
+        )
     bins = np.rint(relative / step_mm).astype(np.int64)
     inside = np.flatnonzero(np.abs(relative - bins * step_mm) <= window_mm / 2)
     if inside.size == 0:
@@ -567,7 +632,8 @@ def _bin_positions(capture: Capture, step_mm: float, window_mm: float) -> LineDa
         raise ValueError(
             f"the capture makes {size_text(runs)} runs × {size_text(high - low + 1)} targets, "
             f"beyond the {size_text(MAX_READINGS)} readings a line may hold (docs/formats.md, "
-            "Limits); check capture_step_mm and the position channel")
+            "Limits); check capture_step_mm and the position channel"
+        )
     targets = np.arange(low, high + 1, dtype=float) * step_mm
     deviations = np.full((runs, targets.size), np.nan)
     times = np.full((runs, targets.size), np.nan)
@@ -591,7 +657,8 @@ def _bin_times(capture: Capture, step_s: float) -> LineData:
         raise ValueError(
             f"{duration:g} s in windows of {step_s:g} s make more than {size_text(MAX_READINGS)} "
             "readings "
-            "(docs/formats.md, Limits); give a longer capture_step_s")
+            "(docs/formats.md, Limits); give a longer capture_step_s"
+        )
     window = np.floor((capture.time_s - capture.time_s[0]) / step_s).astype(np.int64)
     starts = np.flatnonzero(np.concatenate([[True], window[1:] != window[:-1]]))
     counts = np.diff(np.append(starts, window.size))

@@ -93,8 +93,11 @@ def read_iso_table(path: str | Path, unit: str | None = None) -> IsoTable:
     source = SourceText.read(path)
     declared = normalise_unit(unit) if unit else None
     if declared is not None and declared not in DEVIATION_FACTOR:
-        raise source.error(f"deviation unit {unit!r} is not supported; use one of "
-                           f"{choices(tuple(DEVIATION_FACTOR))}", 1)
+        raise source.error(
+            f"deviation unit {unit!r} is not supported; use one of "
+            f"{choices(tuple(DEVIATION_FACTOR))}",
+            1,
+        )
     if any("TGT_DATA[" in line.upper() for line in source.lines):
         return _read_ecmc(source, declared)
     return _read_columns(source, declared)
@@ -127,8 +130,9 @@ def _read_ecmc(source: SourceText, given_unit: str | None) -> IsoTable:
             continue
         match = _ENTRY.match(text)
         if not match:
-            raise source.error(f"expected NAME=value or NAME[i]=value, found {quote(stripped)}",
-                               number)
+            raise source.error(
+                f"expected NAME=value or NAME[i]=value, found {quote(stripped)}", number
+            )
         name, index, value = match.group(1).upper(), match.group(2), match.group(3).strip()
         if name in ("CYCLES", "POSITIONS"):
             count = parse_int(value, source, number, name)
@@ -153,20 +157,29 @@ def _read_ecmc(source: SourceText, given_unit: str | None) -> IsoTable:
             header[name] = value
     unit = normalise_unit(header["UNIT"]) if "UNIT" in header else (given_unit or "mm")
     if unit not in DEVIATION_FACTOR or unit in ANGLE_UNITS:
-        raise source.error(f"UNIT={quote(header['UNIT'])} is not a supported length unit; use "
-                           "one of um, nm, mm, m, inch", _line_of(source, "UNIT"))
+        raise source.error(
+            f"UNIT={quote(header['UNIT'])} is not a supported length unit; use "
+            "one of um, nm, mm, m, inch",
+            _line_of(source, "UNIT"),
+        )
     if given_unit is not None and given_unit != unit:
-        raise source.error(f"the file's UNIT is {unit!r} but the unit given is {given_unit!r}; "
-                           "correct one of them", _line_of(source, "UNIT"))
+        raise source.error(
+            f"the file's UNIT is {unit!r} but the unit given is {given_unit!r}; "
+            "correct one of them",
+            _line_of(source, "UNIT"),
+        )
     if not targets:
         raise source.error("no TGT_DATA[i] entries", source.last_line)
     positions = declared.get("POSITIONS", (max(targets), source.last_line))
     cycles_seen = max((j for table in readings.values() for _, j in table), default=0)
     cycles = declared.get("CYCLES", (cycles_seen, source.last_line))
     if positions[0] * cycles[0] * 2 > MAX_READINGS:
-        raise source.error(f"POSITIONS={positions[0]} × CYCLES={cycles[0]} × 2 directions is "
-                           f"beyond the {size_text(MAX_READINGS)} readings a line may hold "
-                           "(docs/formats.md, Limits)", positions[1])
+        raise source.error(
+            f"POSITIONS={positions[0]} × CYCLES={cycles[0]} × 2 directions is "
+            f"beyond the {size_text(MAX_READINGS)} readings a line may hold "
+            "(docs/formats.md, Limits)",
+            positions[1],
+        )
     for i, (_, number) in targets.items():
         if i > positions[0]:
             raise source.error(f"TGT_DATA[{i}] is beyond POSITIONS={positions[0]}", number)
@@ -182,8 +195,9 @@ def _read_ecmc(source: SourceText, given_unit: str | None) -> IsoTable:
         raise source.error("no REF_DATA_FWD[i,j] readings", source.last_line)
     for i in range(1, positions[0] + 1):
         if i not in targets:
-            raise source.error(f"TGT_DATA[{i}] is missing (POSITIONS={positions[0]})",
-                               source.last_line)
+            raise source.error(
+                f"TGT_DATA[{i}] is missing (POSITIONS={positions[0]})", source.last_line
+            )
     kinds = ["FWD", "BWD"] if readings["BWD"] else ["FWD"]
     for kind in kinds:
         for j in range(1, cycles[0] + 1):
@@ -204,8 +218,13 @@ def _read_ecmc(source: SourceText, given_unit: str | None) -> IsoTable:
             for i in range(1, positions[0] + 1):
                 reading, number = readings[kind][(i, j)]
                 deviation = reading - targets[i][0]
-                check_magnitude(deviation * factor, MAX_ABS_DEVIATION, source, number,
-                                f"REF_DATA_{kind}[{i},{j}] − TGT_DATA[{i}] (µm)")
+                check_magnitude(
+                    deviation * factor,
+                    MAX_ABS_DEVIATION,
+                    source,
+                    number,
+                    f"REF_DATA_{kind}[{i},{j}] − TGT_DATA[{i}] (µm)",
+                )
                 run.append(deviation)
             runs.append(run)
     forward = 1 if positions[0] == 1 or file_targets[-1] > file_targets[0] else -1
@@ -237,9 +256,12 @@ def _check_monotonic(source: SourceText, targets: FloatArray, line: int) -> None
     if targets.size > 1 and not (np.all(steps > 0) or np.all(steps < 0)):
         raise source.error("targets must be strictly increasing or strictly decreasing", line)
     if targets.size > 1 and np.min(np.abs(steps)) < MIN_TARGET_SPACING_MM:
-        raise source.error(f"two targets are {np.min(np.abs(steps)):g} mm apart; targets of a "
-                           f"line are at least {MIN_TARGET_SPACING_MM:g} mm apart "
-                           "(docs/formats.md, Limits)", line)
+        raise source.error(
+            f"two targets are {np.min(np.abs(steps)):g} mm apart; targets of a "
+            f"line are at least {MIN_TARGET_SPACING_MM:g} mm apart "
+            "(docs/formats.md, Limits)",
+            line,
+        )
 
 
 def _line_data(
@@ -285,8 +307,9 @@ def _read_columns(source: SourceText, declared: str | None) -> IsoTable:
         rows.append((number, split_fields(stripped, delimiter)))
     if names is None:
         raise source.error("no header row (target_mm up_1 … down_1 …)", source.last_line)
-    target_names = [i for i, n in enumerate(names) if n in ("target", "target_mm", "position",
-                                                             "position_mm")]
+    target_names = [
+        i for i, n in enumerate(names) if n in ("target", "target_mm", "position", "position_mm")
+    ]
     if len(target_names) != 1:
         raise source.error("the header needs one target column (target_mm)", header_line)
     run_columns: dict[tuple[int, int], int] = {}
@@ -296,8 +319,9 @@ def _read_columns(source: SourceText, declared: str | None) -> IsoTable:
             kind = 1 if match.group(1) in ("up", "fwd", "forward") else -1
             cycle = int(match.group(2))
             if cycle < 1 or (kind, cycle) in run_columns:
-                raise source.error(f"column {name!r} is repeated or its cycle is not ≥ 1",
-                                   header_line)
+                raise source.error(
+                    f"column {name!r} is repeated or its cycle is not ≥ 1", header_line
+                )
             run_columns[(kind, cycle)] = index
         elif index != target_names[0]:
             raise source.error(
@@ -308,26 +332,39 @@ def _read_columns(source: SourceText, declared: str | None) -> IsoTable:
         raise source.error("no up_j / down_j columns", header_line)
     if not rows:
         raise source.error("the table has no rows", source.last_line)
-    unit_line = next((n for n, text in source.numbered()
-                      if re.match(r"^\s*#\s*unit\s*:", text, re.IGNORECASE)), 1)
+    unit_line = next(
+        (n for n, text in source.numbered() if re.match(r"^\s*#\s*unit\s*:", text, re.IGNORECASE)),
+        1,
+    )
     if "unit" in header:
         unit = normalise_unit(header["unit"])
         if unit not in DEVIATION_FACTOR:
-            raise source.error(f"unit {quote(header['unit'])} is not supported; use one of "
-                               f"{choices(tuple(DEVIATION_FACTOR))}", unit_line)
+            raise source.error(
+                f"unit {quote(header['unit'])} is not supported; use one of "
+                f"{choices(tuple(DEVIATION_FACTOR))}",
+                unit_line,
+            )
         if declared is not None and declared != unit:
-            raise source.error(f"the file's unit is {unit!r} but the unit given is "
-                               f"{declared!r}; correct one of them", unit_line)
+            raise source.error(
+                f"the file's unit is {unit!r} but the unit given is "
+                f"{declared!r}; correct one of them",
+                unit_line,
+            )
     elif declared is not None:
         unit = declared
     else:
         raise source.error(
             "the table does not state its deviation unit and volucal does not assume one: add a "
             "line '# unit: um' (or nm, mm, urad, arcsec, …), or give deviation_unit in the plan "
-            "(--unit on the command line)", header_line)
+            "(--unit on the command line)",
+            header_line,
+        )
     if len(rows) * len(run_columns) > MAX_READINGS:
-        raise source.error(f"{len(rows)} targets × {len(run_columns)} runs is beyond the "
-                           f"{size_text(MAX_READINGS)} readings a line may hold", header_line)
+        raise source.error(
+            f"{len(rows)} targets × {len(run_columns)} runs is beyond the "
+            f"{size_text(MAX_READINGS)} readings a line may hold",
+            header_line,
+        )
     factor = DEVIATION_FACTOR[unit]
     targets = []
     values = np.full((len(rows), len(run_columns)), np.nan)
@@ -336,8 +373,7 @@ def _read_columns(source: SourceText, declared: str | None) -> IsoTable:
         if len(cells) != len(names):
             raise source.error(f"expected {len(names)} fields, found {len(cells)}", number)
         target = parse_float(cells[target_names[0]], source, number, "target")
-        targets.append(check_magnitude(target, MAX_ABS_POSITION_MM, source, number,
-                                       "target (mm)"))
+        targets.append(check_magnitude(target, MAX_ABS_POSITION_MM, source, number, "target (mm)"))
         for col, run_key in enumerate(keys):
             cell = cells[run_columns[run_key]]
             if cell.lower() in ("", "nan", "-"):
@@ -356,8 +392,9 @@ def _read_columns(source: SourceText, declared: str | None) -> IsoTable:
     return IsoTable(source.path, data, unit, "columns", file_targets, header, source.raw)
 
 
-def write_iso_table(path: str | Path, data: LineData, *, unit: str = "um",
-                    first_target_mm: float = 0.0) -> None:
+def write_iso_table(
+    path: str | Path, data: LineData, *, unit: str = "um", first_target_mm: float = 0.0
+) -> None:
     """Write the column form: one row per target, one column per run (``up_j``/``down_j`` in
     run order per direction). Values round-trip exactly; times and environment are not kept."""
     counters = {1: 0, -1: 0}

@@ -85,8 +85,18 @@ UNCERTAINTY_KEYS = {
     "angular_optics_urad": "angular optics, µrad",
 }
 MACHINE_KEYS = ("name", "chain", "stroke", "screw_lead", "tool_offset", "reference")
-LINE_KEYS = ("name", "file", "quantity", "start", "direction", "sensitive", "reflector",
-             "deviation_unit", "sign", "env_corrected")
+LINE_KEYS = (
+    "name",
+    "file",
+    "quantity",
+    "start",
+    "direction",
+    "sensitive",
+    "reflector",
+    "deviation_unit",
+    "sign",
+    "env_corrected",
+)
 #: Reader options of a [[line]] (kept in LineSpec.reader) and their TOML types.
 READER_KEYS: dict[str, tuple[type, ...]] = {
     "format": (str,),
@@ -187,28 +197,36 @@ def load_plan(path: str | Path, files_root: str | Path | None = None) -> Plan:
         message = str(exc)
         match = _POSITION.search(message)
         line = int(match.group(1)) if match and match.group(1) else max(len(source.lines), 1)
-        raise FormatError(path, f"TOML syntax: {_POSITION.sub('', message).strip()}",
-                          line) from None
+        raise FormatError(
+            path, f"TOML syntax: {_POSITION.sub('', message).strip()}", line
+        ) from None
     locate = _Locator(text)
     end = source.last_line  # where a plan that lacks a table ended
     unknown = sorted(set(document) - {"machine", "line", "uncertainty"})
     if unknown:
         raise FormatError(
-            path, f"unknown table or key {', '.join(unknown)}; a plan has [machine], [[line]] and "
+            path,
+            f"unknown table or key {', '.join(unknown)}; a plan has [machine], [[line]] and "
             "an optional [uncertainty]",
-            locate.tables.get(unknown[0]) or locate.field(0, unknown[0]) or end)
+            locate.tables.get(unknown[0]) or locate.field(0, unknown[0]) or end,
+        )
     machine = _machine(path, document.get("machine"), locate, end)
     entries = document.get("line", [])
     if not isinstance(entries, list) or not entries:
-        raise FormatError(path, "the plan has no [[line]] entries (each line is a [[line]] "
-                          "table)", locate.tables.get("line", end))
+        raise FormatError(
+            path,
+            "the plan has no [[line]] entries (each line is a [[line]] table)",
+            locate.tables.get("line", end),
+        )
     try:
         folder = Path(os.path.realpath(path.parent))
         root = Path(os.path.realpath(files_root)) if files_root is not None else folder
     except (OSError, RuntimeError, ValueError):
         raise FormatError(path, "its folder cannot be resolved") from None
-    specs = [_line(path, index, entry, machine, locate, root, files_root is not None)
-             for index, entry in enumerate(entries)]
+    specs = [
+        _line(path, index, entry, machine, locate, root, files_root is not None)
+        for index, entry in enumerate(entries)
+    ]
     seen: dict[str, int] = {}
     for index, spec in enumerate(specs):
         if spec.name in seen:
@@ -220,8 +238,12 @@ def load_plan(path: str | Path, files_root: str | Path | None = None) -> Plan:
             )
         seen[spec.name] = index
     uncertainty = _uncertainty(path, document.get("uncertainty", {}), locate)
-    return Plan(machine=machine, lines=tuple(specs), path=Path(os.path.realpath(path)),
-                uncertainty=uncertainty)
+    return Plan(
+        machine=machine,
+        lines=tuple(specs),
+        path=Path(os.path.realpath(path)),
+        uncertainty=uncertainty,
+    )
 
 
 def _machine(path: Path, table: object, locate: _Locator, end: int) -> Machine:
@@ -230,19 +252,30 @@ def _machine(path: Path, table: object, locate: _Locator, end: int) -> Machine:
         raise FormatError(path, "the [machine] table is missing", where or end)
     unknown = sorted(set(table) - set(MACHINE_KEYS))
     if unknown:
-        raise FormatError(path, f"[machine]: unknown field {unknown[0]!r}; fields are "
-                          f"{', '.join(MACHINE_KEYS)}", locate.field(where, unknown[0]))
+        raise FormatError(
+            path,
+            f"[machine]: unknown field {unknown[0]!r}; fields are {', '.join(MACHINE_KEYS)}",
+            locate.field(where, unknown[0]),
+        )
     if "stroke" not in table:
-        raise FormatError(path, "[machine]: field 'stroke' is required, e.g. stroke = "
-                          "{ X = [0, 400], Y = [0, 400], Z = [0, 350] }", where)
+        raise FormatError(
+            path,
+            "[machine]: field 'stroke' is required, e.g. stroke = "
+            "{ X = [0, 400], Y = [0, 400], Z = [0, 350] }",
+            where,
+        )
     for key in ("stroke", "screw_lead"):
         if key in table and not isinstance(table[key], dict):
-            raise FormatError(path, f"[machine], field {key!r}: expected a table such as "
-                              "{ X = …, Y = …, Z = … }", locate.field(where, key))
+            raise FormatError(
+                path,
+                f"[machine], field {key!r}: expected a table such as {{ X = …, Y = …, Z = … }}",
+                locate.field(where, key),
+            )
     for key in ("name", "chain"):
         if key in table and not isinstance(table[key], str):
-            raise FormatError(path, f"[machine], field {key!r}: expected a string",
-                              locate.field(where, key))
+            raise FormatError(
+                path, f"[machine], field {key!r}: expected a string", locate.field(where, key)
+            )
     try:
         return Machine(
             name=table.get("name", "machine"),
@@ -255,25 +288,37 @@ def _machine(path: Path, table: object, locate: _Locator, end: int) -> Machine:
     except MachineError as exc:
         match = re.match(r"machine\.([a-z_]+)", str(exc))
         key = match.group(1) if match else "stroke"
-        raise FormatError(path, f"[machine], field {key!r}: {exc}",
-                          locate.field(where, key)) from None
+        raise FormatError(
+            path, f"[machine], field {key!r}: {exc}", locate.field(where, key)
+        ) from None
 
 
-def _line(path: Path, index: int, entry: object, machine: Machine, locate: _Locator,
-          root: Path, root_given: bool) -> LineSpec:
+def _line(
+    path: Path,
+    index: int,
+    entry: object,
+    machine: Machine,
+    locate: _Locator,
+    root: Path,
+    root_given: bool,
+) -> LineSpec:
     start_line = locate.entry(index)
     if not isinstance(entry, dict):
         raise FormatError(path, f"{_entry_label(index, None)}: expected a table", start_line or 1)
     label = _entry_label(index, entry.get("name"))
 
     def fail(key: str, message: str) -> FormatError:
-        return FormatError(path, f"{label}, field {key!r}: {message}",
-                           locate.field(start_line, key))
+        return FormatError(
+            path, f"{label}, field {key!r}: {message}", locate.field(start_line, key)
+        )
 
     unknown = sorted(set(entry) - set(LINE_KEYS) - set(READER_KEYS))
     if unknown:
-        raise fail(unknown[0], f"unknown field; fields are {', '.join(LINE_KEYS)} and the "
-                   f"reader options {', '.join(READER_KEYS)}")
+        raise fail(
+            unknown[0],
+            f"unknown field; fields are {', '.join(LINE_KEYS)} and the "
+            f"reader options {', '.join(READER_KEYS)}",
+        )
     for key in ("file", "quantity", "start", "direction"):
         if key not in entry:
             raise FormatError(path, f"{label}: field {key!r} is required", start_line)
@@ -285,8 +330,10 @@ def _line(path: Path, index: int, entry: object, machine: Machine, locate: _Loca
     if not isinstance(name, str) or not name.strip():
         raise fail("name", "expected a non-empty string")
     if "/" in name or name.startswith("."):
-        raise fail("name", "a name cannot contain '/' or start with '.' (it names a group in "
-                   "the project file)")
+        raise fail(
+            "name",
+            "a name cannot contain '/' or start with '.' (it names a group in the project file)",
+        )
     for key in ("quantity", "deviation_unit"):
         if key in entry and not isinstance(entry[key], str):
             raise fail(key, "expected a string")
@@ -301,8 +348,11 @@ def _line(path: Path, index: int, entry: object, machine: Machine, locate: _Loca
         raise fail("env_corrected", f"expected true or false, got {env!r}")
     quantity = entry["quantity"]
     stated = "deviation_unit" in entry
-    unit = normalise_unit(entry["deviation_unit"]) if stated else (
-        "urad" if quantity == "angular" else "um")
+    unit = (
+        normalise_unit(entry["deviation_unit"])
+        if stated
+        else ("urad" if quantity == "angular" else "um")
+    )
     try:
         return LineSpec(
             name=name,
@@ -321,14 +371,16 @@ def _line(path: Path, index: int, entry: object, machine: Machine, locate: _Loca
     except PlanError as exc:
         # LineSpec's messages read "line 'name': <field> …"
         message = str(exc).split(": ", 1)[-1]
-        match = re.match(r"(quantity|start|direction|reflector|sensitive|deviation_unit|sign)\b",
-                         message)
+        match = re.match(
+            r"(quantity|start|direction|reflector|sensitive|deviation_unit|sign)\b", message
+        )
         key = match.group(1) if match else "quantity"
         raise fail(key, message.removeprefix(f"{key}: ")) from None
 
 
-def _data_file(plan: Path, name: str, root: Path, root_given: bool, format_given: bool,
-               fail: Any) -> Path:
+def _data_file(
+    plan: Path, name: str, root: Path, root_given: bool, format_given: bool, fail: Any
+) -> Path:
     """The real path of a plan's ``file``, inside ``root`` and named as a measurement file (module
     notes); nothing of the file is read here."""
     candidate = Path(name)
@@ -340,21 +392,32 @@ def _data_file(plan: Path, name: str, root: Path, root_given: bool, format_given
         raise fail("file", f"{name!r} cannot be resolved (a loop of symbolic links?)") from None
     if not real.is_relative_to(root):
         where = "the allowed folder" if root_given else "the plan's folder"
-        error = fail("file", f"{name!r} resolves to {str(real)!r}, outside {where} "
-                     f"{str(root)!r}; volucal reads a plan's files only from there. Move the file "
-                     "into that folder, or allow its folder explicitly (--files-root DIR on the "
-                     "command line, files_root= in load_plan)")
+        error = fail(
+            "file",
+            f"{name!r} resolves to {str(real)!r}, outside {where} "
+            f"{str(root)!r}; volucal reads a plan's files only from there. Move the file "
+            "into that folder, or allow its folder explicitly (--files-root DIR on the "
+            "command line, files_root= in load_plan)",
+        )
         raise OutsideFolderError(error.path, error.reason, error.line, real)
     if real.suffix.lower() not in MEASUREMENT_EXTENSIONS and not format_given:
-        raise fail("file", f"{name!r} is not named as a measurement file "
-                   f"({', '.join(MEASUREMENT_EXTENSIONS)}); if it is one, say how to read it with "
-                   "format = \"table\" (or rtl, rta, iso230-2, capture)")
+        raise fail(
+            "file",
+            f"{name!r} is not named as a measurement file "
+            f"({', '.join(MEASUREMENT_EXTENSIONS)}); if it is one, say how to read it with "
+            'format = "table" (or rtl, rta, iso230-2, capture)',
+        )
     return real
 
 
 def _check_vector(value: object, fail: Any, key: str) -> None:
-    if not isinstance(value, list) or len(value) != 3 or not all(
-        isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in value
+    if (
+        not isinstance(value, list)
+        or len(value) != 3
+        or not all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+            for v in value
+        )
     ):
         raise fail(key, f"expected three numbers [x, y, z], got {value!r}")
 
@@ -377,9 +440,12 @@ def _reader_options(entry: dict[str, Any], fail: Any) -> dict[str, object]:
             ColumnMap.from_mapping(reader["columns"])  # type: ignore[arg-type]
         except ValueError as exc:
             raise fail("columns", str(exc)) from None
-    for key, known in (("position_unit", POSITION_FACTOR), ("time_unit", TIME_FACTOR),
-                       ("pressure_unit", PRESSURE_FACTOR_KPA),
-                       ("temperature_unit", TEMPERATURE_UNITS)):
+    for key, known in (
+        ("position_unit", POSITION_FACTOR),
+        ("time_unit", TIME_FACTOR),
+        ("pressure_unit", PRESSURE_FACTOR_KPA),
+        ("temperature_unit", TEMPERATURE_UNITS),
+    ):
         if key in reader and normalise_unit(str(reader[key])) not in known:
             raise fail(key, f"{reader[key]!r} is not one of {choices(tuple(known))}")
     for key in ("target_tolerance_mm", "capture_step_mm"):
@@ -397,13 +463,21 @@ def _uncertainty(path: Path, table: object, locate: _Locator) -> dict[str, float
     out: dict[str, float] = {}
     for key, value in table.items():
         if key not in UNCERTAINTY_KEYS:
-            raise FormatError(path, f"[uncertainty], field {key!r}: unknown; fields are "
-                              f"{', '.join(UNCERTAINTY_KEYS)}", locate.field(where, key))
-        if isinstance(value, bool) or not isinstance(value, int | float) or not (
-            math.isfinite(value) and value >= 0
+            raise FormatError(
+                path,
+                f"[uncertainty], field {key!r}: unknown; fields are {', '.join(UNCERTAINTY_KEYS)}",
+                locate.field(where, key),
+            )
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not (math.isfinite(value) and value >= 0)
         ):
-            raise FormatError(path, f"[uncertainty], field {key!r}: expected a number ≥ 0, got "
-                              f"{value!r}", locate.field(where, key))
+            raise FormatError(
+                path,
+                f"[uncertainty], field {key!r}: expected a number ≥ 0, got {value!r}",
+                locate.field(where, key),
+            )
         out[key] = float(value)
     return out
 
@@ -436,8 +510,11 @@ def _toml_key(key: str) -> str:
 
 def plan_text(plan: Plan, folder: str | Path | None = None) -> str:
     """The plan.toml text of ``plan`` with file paths relative to ``folder`` (the plan's)."""
-    base = Path(folder) if folder is not None else (
-        plan.path.parent if plan.path is not None else Path.cwd())
+    base = (
+        Path(folder)
+        if folder is not None
+        else (plan.path.parent if plan.path is not None else Path.cwd())
+    )
     m = plan.machine
     lines = [
         "[machine]",
@@ -616,21 +693,30 @@ def read_line_file(spec: LineSpec) -> tuple[str, LineData, str, bytes, Capture |
     if fmt in ("rtl", "rta"):
         rtl = read_rtl(path)
         if rtl.angular and spec.quantity != "angular":
-            raise FormatError(path, f"this is an angular log (.rta) but the plan's line "
-                              f"{spec.name!r} has quantity = {spec.quantity!r}", 1)
+            raise FormatError(
+                path,
+                f"this is an angular log (.rta) but the plan's line "
+                f"{spec.name!r} has quantity = {spec.quantity!r}",
+                1,
+            )
         if stated is not None and stated != rtl.unit:
             raise LineFieldError(
-                spec.name, "deviation_unit",
+                spec.name,
+                "deviation_unit",
                 f"the file is a Renishaw {'.rta' if rtl.angular else '.rtl'} log, whose "
                 f"deviations are in {describe(rtl.unit)} by definition, but the plan says "
-                f"{describe(stated)}; remove deviation_unit or correct it")
+                f"{describe(stated)}; remove deviation_unit or correct it",
+            )
         return fmt, rtl.data, rtl.unit, rtl.raw, None
     if fmt == "iso230-2":
         table = read_iso_table(path, stated)
         return fmt, table.data, table.unit, table.raw, None
     if fmt == "capture":
-        capture = read_capture(path, _table_format(spec.reader, stated),
-                               sample_rate_hz=spec.reader.get("capture_rate_hz"))  # type: ignore[arg-type]
+        capture = read_capture(
+            path,
+            _table_format(spec.reader, stated),
+            sample_rate_hz=spec.reader.get("capture_rate_hz"),
+        )  # type: ignore[arg-type]
         try:
             data = capture_line_data(
                 capture,
@@ -641,8 +727,11 @@ def read_line_file(spec: LineSpec) -> tuple[str, LineData, str, bytes, Capture |
         except ValueError as exc:
             raise LineFieldError(spec.name, "capture_step_mm", str(exc)) from None
         if capture.unit is None:
-            raise LineFieldError(spec.name, "deviation_unit", "the capture does not state its "
-                                 "deviation unit: give deviation_unit")
+            raise LineFieldError(
+                spec.name,
+                "deviation_unit",
+                "the capture does not state its deviation unit: give deviation_unit",
+            )
         return fmt, data, capture.unit, capture.raw, capture
     table_file = read_table(path, _table_format(spec.reader, stated))
     return fmt, table_file.data, table_file.unit, table_file.raw, None
@@ -653,8 +742,12 @@ def import_line(spec: LineSpec, *, drop_outliers: bool = False) -> LineImport:
     fmt, raw, unit, source_bytes, capture = read_line_file(spec)
     if is_angle(unit) != (spec.quantity == "angular"):
         kind = "an angle" if is_angle(unit) else "a length"
-        raise LineFieldError(spec.name, "deviation_unit", f"the file's deviations are in {unit} "
-                             f"({kind}), which does not fit a {spec.quantity} line")
+        raise LineFieldError(
+            spec.name,
+            "deviation_unit",
+            f"the file's deviations are in {unit} "
+            f"({kind}), which does not fit a {spec.quantity} line",
+        )
     factor = DEVIATION_FACTOR[unit] * spec.sign
     corrected = replace(raw, deviations=raw.deviations * factor)
     corrections: list[str] = []
@@ -681,8 +774,10 @@ def import_line(spec: LineSpec, *, drop_outliers: bool = False) -> LineImport:
                 raise LineFieldError(spec.name, "env_corrected", str(exc)) from None
             corrections += applied
         else:
-            notes.append(f"env_corrected = false has no effect on a {spec.quantity} line "
-                         "(its optics do not depend on the air's refractive index)")
+            notes.append(
+                f"env_corrected = false has no effect on a {spec.quantity} line "
+                "(its optics do not depend on the air's refractive index)"
+            )
     flags = screen(corrected, line=spec.name, unit=spec.unit)
     if drop_outliers and flags:
         corrected = drop(corrected, flags)
@@ -704,6 +799,7 @@ def import_line(spec: LineSpec, *, drop_outliers: bool = False) -> LineImport:
 
 def session_order(lines: list[Line]) -> list[Line]:
     """Lines by the time of their first reading (ties keep plan order): the session order."""
+
     def first_reading(line: Line) -> float:
         times = line.data.times_s
         offset = float(np.nanmin(times)) if np.isfinite(times).any() else 0.0
@@ -724,8 +820,11 @@ def import_plan(
     Errors name the data file and its line (FormatError from the readers) or the plan file, the
     ``[[line]]`` entry and the field (a missing file, options that do not fit the file).
     """
-    text = plan.path.read_text(encoding="utf-8", errors="replace") if (
-        plan.path is not None and plan.path.is_file()) else ""
+    text = (
+        plan.path.read_text(encoding="utf-8", errors="replace")
+        if (plan.path is not None and plan.path.is_file())
+        else ""
+    )
     locate = _Locator(text)
     imported: list[LineImport] = []
     for index, spec in enumerate(plan.lines):
@@ -734,8 +833,11 @@ def import_plan(
 
         def fail(key: str, message: str, index: int = index, spec: LineSpec = spec) -> FormatError:
             where = plan.path if plan.path is not None else Path("plan.toml")
-            return FormatError(where, f"{_entry_label(index, spec.name)}, field {key!r}: {message}",
-                               locate.field(locate.entry(index), key) if text else None)
+            return FormatError(
+                where,
+                f"{_entry_label(index, spec.name)}, field {key!r}: {message}",
+                locate.field(locate.entry(index), key) if text else None,
+            )
 
         if spec.file is None:
             raise fail("file", "the line has no file")

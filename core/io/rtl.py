@@ -184,8 +184,11 @@ def _parse(source: SourceText, sign: int) -> RtlFile:
     deviation_sorted = sign * deviations[:, order]
     times = reading_times(runs, len(targets), end - start, run_direction)
     air, material = _temperatures_per_reading(environment, times, end - start)
-    metadata = {_USER_TEXT_KEYS[k.lower()]: v for k, v in user_text.items()
-                if k.lower() in _USER_TEXT_KEYS and v}
+    metadata = {
+        _USER_TEXT_KEYS[k.lower()]: v
+        for k, v in user_text.items()
+        if k.lower() in _USER_TEXT_KEYS and v
+    }
     data = LineData(
         targets_mm=relative[order],
         deviations=deviation_sorted,
@@ -305,8 +308,11 @@ def _targets(section: _Section, source: SourceText) -> tuple[FloatArray, dict[st
         for token in stripped.split():
             values.append(_target(token, source, number))
             if len(values) > MAX_TARGETS:
-                raise source.error(f"more than {size_text(MAX_TARGETS)} target positions "
-                                   "(docs/formats.md, Limits)", number)
+                raise source.error(
+                    f"more than {size_text(MAX_TARGETS)} target positions "
+                    "(docs/formats.md, Limits)",
+                    number,
+                )
     if count is None:
         raise source.error("TARGET DATA:: has no 'Target-count:' line", section.line)
     if targets_line is None:
@@ -327,7 +333,9 @@ def _targets(section: _Section, source: SourceText) -> tuple[FloatArray, dict[st
     if count > 1 and np.min(np.abs(steps)) < MIN_TARGET_SPACING_MM:
         raise source.error(
             f"two targets are {np.min(np.abs(steps)):g} mm apart; targets of a line are at least "
-            f"{MIN_TARGET_SPACING_MM:g} mm apart (docs/formats.md, Limits)", targets_line)
+            f"{MIN_TARGET_SPACING_MM:g} mm apart (docs/formats.md, Limits)",
+            targets_line,
+        )
     return targets, fields
 
 
@@ -354,9 +362,7 @@ def _deviations(
     for number, text in body:
         if " ".join(text.strip().lower().split()).startswith("run target data"):
             break
-        raise source.error(
-            f"DEVIATIONS:: expected 'Run Target Data:', found {quote(text)}", number
-        )
+        raise source.error(f"DEVIATIONS:: expected 'Run Target Data:', found {quote(text)}", number)
     else:
         raise source.error("DEVIATIONS:: has no 'Run Target Data:' line", section.line)
     # the claimed size is checked before anything of that size exists
@@ -396,8 +402,12 @@ def _deviations(
         cells.append((run - 1) * targets + (target - 1))
         sequence.setdefault(run, []).append((target, number))
     if len(values) != expected:
-        missing = next((r, t) for r in range(1, runs + 1) for t in range(1, targets + 1)
-                       if (r, t) not in seen_at)
+        missing = next(
+            (r, t)
+            for r in range(1, runs + 1)
+            for t in range(1, targets + 1)
+            if (r, t) not in seen_at
+        )
         last = section.body[-1][0]
         raise source.error(
             f"{len(values)} deviation rows for Run-count {runs} × Target-count {targets} = "
@@ -434,8 +444,9 @@ def _environment(
         lines[name] = number
     by_name = {" ".join(k.lower().split()): v for k, v in fields.items()}
 
-    def pair(name: str, what: str,
-             bounds: tuple[float, float] | None = None) -> tuple[float, float] | None:
+    def pair(
+        name: str, what: str, bounds: tuple[float, float] | None = None
+    ) -> tuple[float, float] | None:
         if name not in by_name:
             return None
         tokens = by_name[name].split()
@@ -475,8 +486,9 @@ def _environment(
         if not tokens:
             raise source.error("Exp coeff: expected a value in ppm/°C", lines["exp coeff"])
         expansion = parse_float(tokens[0], source, lines["exp coeff"], "Exp coeff")
-        check_magnitude(expansion, MAX_ABS_EXPANSION_PPM, source, lines["exp coeff"],
-                        "Exp coeff (ppm/°C)")
+        check_magnitude(
+            expansion, MAX_ABS_EXPANSION_PPM, source, lines["exp coeff"], "Exp coeff (ppm/°C)"
+        )
     environment = Environment(
         air_temp_c=pair("air temp", "Air temp (°C)", RTL_AIR_TEMP_RANGE_C),
         air_pressure_kpa=pair("air press", "Air press (kPa)", RTL_PRESSURE_RANGE_KPA),
@@ -503,7 +515,6 @@ def reading_times(
         order = visit if run_direction[run] > 0 else visit[::-1]
         times[run, order] = (run * targets + visit) * step
     return times
-
 
 
 def _temperatures_per_reading(
@@ -573,7 +584,7 @@ def write_rtl(
         "Targets :",
     ]
     for first in range(0, count, 5):
-        lines.append(" ".join(f"{format_number(t):>12}" for t in targets[first:first + 5]))
+        lines.append(" ".join(f"{format_number(t):>12}" for t in targets[first : first + 5]))
     lines += ["Flags: 0 0 2 0", "", "USER-TEXT::"]
     text = dict(user_text) if user_text is not None else _user_text_from_metadata(data.metadata)
     for key in _USER_TEXT_ORDER:
@@ -634,4 +645,3 @@ def _environment_lines(environment: Environment) -> list[str]:
         value = format_number(environment.expansion_ppm_per_c)
         out.append(f"Exp coeff  : {value} {value} 0")
     return out
-

@@ -54,8 +54,9 @@ def read_file_bytes(path: str | Path, limit: int = MAX_TEXT_BYTES) -> bytes:
     try:
         fd = os.open(path, flags)
     except FileNotFoundError:
-        raise FormatError(path, "file not found; check the path (relative paths start at the "
-                          "plan file's folder)") from None
+        raise FormatError(
+            path, "file not found; check the path (relative paths start at the plan file's folder)"
+        ) from None
     except OSError as exc:
         raise FormatError(path, f"cannot be read: {_os_reason(exc)}") from None
     try:
@@ -63,9 +64,12 @@ def read_file_bytes(path: str | Path, limit: int = MAX_TEXT_BYTES) -> bytes:
         if not stat.S_ISREG(info.st_mode):
             raise FormatError(path, f"is {_kind(info.st_mode)}, not a measurement file")
         if info.st_size > limit:
-            raise FormatError(path, f"is {size_text(info.st_size)} bytes; volucal reads files of "
-                              f"up to {size_text(limit)} bytes of this kind (docs/formats.md, "
-                              "Limits)")
+            raise FormatError(
+                path,
+                f"is {size_text(info.st_size)} bytes; volucal reads files of "
+                f"up to {size_text(limit)} bytes of this kind (docs/formats.md, "
+                "Limits)",
+            )
         chunks: list[bytes] = []
         held = 0
         while held <= limit:
@@ -75,8 +79,11 @@ def read_file_bytes(path: str | Path, limit: int = MAX_TEXT_BYTES) -> bytes:
             chunks.append(chunk)
             held += len(chunk)
         if held > limit:
-            raise FormatError(path, f"holds more than {size_text(limit)} bytes; volucal reads "
-                              "files of up to that size (docs/formats.md, Limits)")
+            raise FormatError(
+                path,
+                f"holds more than {size_text(limit)} bytes; volucal reads "
+                "files of up to that size (docs/formats.md, Limits)",
+            )
         return b"".join(chunks)
     except OSError as exc:
         raise FormatError(path, f"cannot be read: {_os_reason(exc)}") from None
@@ -124,8 +131,9 @@ class SourceText:
         if nul >= 0:
             # a text log never holds NUL: this is a binary file (nothing of it is quoted)
             line = len(_LINE_BREAK.findall(text, 0, nul)) + 1
-            raise FormatError(path, "holds binary data (a NUL byte), not the text of a "
-                              "measurement file", line)
+            raise FormatError(
+                path, "holds binary data (a NUL byte), not the text of a measurement file", line
+            )
         return cls(Path(path), raw, tuple(_LINE_BREAK.split(text)))
 
     def numbered(self) -> Iterator[tuple[int, str]]:
@@ -187,13 +195,15 @@ def parse_float(token: str, source: SourceText, line: int, what: str) -> float:
     return value
 
 
-def check_range(value: float, low: float, high: float, source: SourceText, line: int, what: str,
-                hint: str = "") -> float:
+def check_range(
+    value: float, low: float, high: float, source: SourceText, line: int, what: str, hint: str = ""
+) -> float:
     """``value`` when ``low ≤ value ≤ high``, else a FormatError naming the line (and ``hint``)."""
     if not low <= value <= high:
         shown = f"{value:g}" if math.isfinite(value) else "beyond the range of a number"
-        raise source.error(f"{what} {shown} is outside {low:g}…{high:g}"
-                           + (f"; {hint}" if hint else ""), line)
+        raise source.error(
+            f"{what} {shown} is outside {low:g}…{high:g}" + (f"; {hint}" if hint else ""), line
+        )
     return value
 
 
@@ -202,9 +212,11 @@ def check_magnitude(value: float, limit: float, source: SourceText, line: int, w
     measurement produces (docs/formats.md, Limits)."""
     if not abs(value) <= limit:
         shown = f"{value:g} is" if math.isfinite(value) else "overflows once converted, far"
-        raise source.error(f"{what} {shown} beyond ±{limit:g}, which no measurement produces "
-                           "(docs/formats.md, Limits); the file is damaged or its unit is wrong",
-                           line)
+        raise source.error(
+            f"{what} {shown} beyond ±{limit:g}, which no measurement produces "
+            "(docs/formats.md, Limits); the file is damaged or its unit is wrong",
+            line,
+        )
     return value
 
 
@@ -234,8 +246,9 @@ def parse_time(token: str, source: SourceText, line: int, what: str) -> float:
     text = token.strip(BLANKS).strip('"').strip(BLANKS)
     if not text.isascii():
         # strptime would take Arabic-Indic or full-width digits: a damaged date
-        raise source.error(f"{what}: expected a date in ASCII characters, found {quote(token)}",
-                           line)
+        raise source.error(
+            f"{what}: expected a date in ASCII characters, found {quote(token)}", line
+        )
     for pattern in _DATE_FORMATS:
         try:
             moment = datetime.strptime(text, pattern)
@@ -246,8 +259,8 @@ def parse_time(token: str, source: SourceText, line: int, what: str) -> float:
         moment = datetime.fromisoformat(text.replace("Z", "+00:00"))
     except ValueError:
         raise source.error(
-            f"{what}: expected a date and time such as \"10:46 Dec 12 2016\" or "
-            f"\"2016-12-12T10:46:00\", found {quote(token)}",
+            f'{what}: expected a date and time such as "10:46 Dec 12 2016" or '
+            f'"2016-12-12T10:46:00", found {quote(token)}',
             line,
         ) from None
     if moment.tzinfo is None:

@@ -91,15 +91,41 @@ from .units import (
     normalise_unit,
 )
 
-__all__ = ["ColumnMap", "TableFile", "TableFormat", "cluster_targets", "detect_delimiter",
-           "read_table", "split_fields", "split_unit", "write_table"]
+__all__ = [
+    "ColumnMap",
+    "TableFile",
+    "TableFormat",
+    "cluster_targets",
+    "detect_delimiter",
+    "read_table",
+    "split_fields",
+    "split_unit",
+    "write_table",
+]
 
 FloatArray = NDArray[np.float64]
 
 _DIRECTION_WORDS = {
-    "+1": 1, "1": 1, "+": 1, "up": 1, "fwd": 1, "forward": 1, "f": 1, "pos": 1, "positive": 1,
-    "-1": -1, "−1": -1, "-": -1, "down": -1, "bwd": -1, "backward": -1, "b": -1, "rev": -1,
-    "reverse": -1, "neg": -1, "negative": -1,
+    "+1": 1,
+    "1": 1,
+    "+": 1,
+    "up": 1,
+    "fwd": 1,
+    "forward": 1,
+    "f": 1,
+    "pos": 1,
+    "positive": 1,
+    "-1": -1,
+    "−1": -1,
+    "-": -1,
+    "down": -1,
+    "bwd": -1,
+    "backward": -1,
+    "b": -1,
+    "rev": -1,
+    "reverse": -1,
+    "neg": -1,
+    "negative": -1,
 }
 _REQUIRED = ("position", "deviation")
 _UNIT_TABLES: dict[str, dict[str, object]] = {
@@ -110,9 +136,14 @@ _UNIT_TABLES: dict[str, dict[str, object]] = {
     "air_temp": TEMPERATURE_UNITS,  # type: ignore[dict-item]
     "material_temp": TEMPERATURE_UNITS,  # type: ignore[dict-item]
 }
-_UNIT_OPTION = {"position": "position_unit", "deviation": "deviation_unit", "time": "time_unit",
-                "pressure": "pressure_unit", "air_temp": "temperature_unit",
-                "material_temp": "temperature_unit"}
+_UNIT_OPTION = {
+    "position": "position_unit",
+    "deviation": "deviation_unit",
+    "time": "time_unit",
+    "pressure": "pressure_unit",
+    "air_temp": "temperature_unit",
+    "material_temp": "temperature_unit",
+}
 _UNIT_FLAG = {"deviation": "--unit", "position": "--position-unit"}
 
 
@@ -146,8 +177,10 @@ class TableFormat:
     def __post_init__(self) -> None:
         if not self.comment:
             raise ValueError("comment: the comment prefix cannot be empty")
-        if not (math.isfinite(self.target_tolerance_mm)
-                and self.target_tolerance_mm >= MIN_TARGET_SPACING_MM):
+        if not (
+            math.isfinite(self.target_tolerance_mm)
+            and self.target_tolerance_mm >= MIN_TARGET_SPACING_MM
+        ):
             raise ValueError(f"target_tolerance_mm must be at least {MIN_TARGET_SPACING_MM} mm")
 
     def declared(self, key: str) -> str | None:
@@ -183,24 +216,31 @@ def read_table(path: str | Path, table_format: TableFormat | None = None) -> Tab
     """
     fmt = table_format or TableFormat()
     source = SourceText.read(path)
-    layout = find_layout(source, delimiter=fmt.delimiter, data_marker=fmt.data_marker,
-                         comment=fmt.comment)
+    layout = find_layout(
+        source, delimiter=fmt.delimiter, data_marker=fmt.data_marker, comment=fmt.comment
+    )
     wanted = ("position", "deviation", "run", "direction", "time") + (
-        ENVIRONMENT_COLUMNS if fmt.environment else ())
+        ENVIRONMENT_COLUMNS if fmt.environment else ()
+    )
     columns, header_units, shown = resolve_columns(source, layout, fmt.columns, wanted, _REQUIRED)
     units = _units(source, layout, fmt, columns, header_units, shown)
     rows = _rows(source, layout, fmt, columns, units, shown)
     data = _assemble(source, fmt, columns, units, rows)
-    return TableFile(source.path, data, units["deviation"] or "", columns, layout.header,
-                     source.raw, units)
+    return TableFile(
+        source.path, data, units["deviation"] or "", columns, layout.header, source.raw, units
+    )
 
 
 # ---- units -------------------------------------------------------------------------------
 
 
 def _units(
-    source: SourceText, layout: Layout, fmt: TableFormat, columns: dict[str, int],
-    header_units: dict[str, str | None], shown: dict[str, str],
+    source: SourceText,
+    layout: Layout,
+    fmt: TableFormat,
+    columns: dict[str, int],
+    header_units: dict[str, str | None],
+    shown: dict[str, str],
 ) -> dict[str, str | None]:
     """The unit of every column read: declared and header units agree; a missing one is an
     error asking for it (positions: mm by the plan contract; times: checked per value, since
@@ -213,8 +253,9 @@ def _units(
         declared = normalise_unit(declared_raw) if declared_raw is not None else None
         if key == "humidity":
             if from_header is not None and from_header not in HUMIDITY_UNITS:
-                raise source.error(f"humidity column {shown[key]}: unit {from_header!r} is not "
-                                   "%RH", where)
+                raise source.error(
+                    f"humidity column {shown[key]}: unit {from_header!r} is not %RH", where
+                )
             continue
         if key not in _UNIT_TABLES:
             continue
@@ -231,7 +272,9 @@ def _units(
         if unit is not None and unit not in _UNIT_TABLES[key]:
             raise source.error(
                 f"{DESCRIPTION[key]} unit {unit!r} of column {shown[key]} is not supported; use "
-                f"one of {choices(tuple(_UNIT_TABLES[key]))}", where)
+                f"one of {choices(tuple(_UNIT_TABLES[key]))}",
+                where,
+            )
         if unit is None and key != "time":
             raise source.error(_missing_unit(key, shown[key]), where)
         units[key] = unit
@@ -249,13 +292,20 @@ def _missing_unit(key: str, column: str) -> str:
         "material_temp": "C, F or K",
     }[key]
     flag = f", {_UNIT_FLAG[key]} on the command line" if key in _UNIT_FLAG else ""
-    return (f"the {DESCRIPTION[key]} column {column} has no unit and volucal does not assume "
-            f"one: give {_UNIT_OPTION[key]} ({examples}) in the plan's [[line]]{flag}, or write "
-            f"it in the header, e.g. '{column.strip(chr(39))} [unit]'")
+    return (
+        f"the {DESCRIPTION[key]} column {column} has no unit and volucal does not assume "
+        f"one: give {_UNIT_OPTION[key]} ({examples}) in the plan's [[line]]{flag}, or write "
+        f"it in the header, e.g. '{column.strip(chr(39))} [unit]'"
+    )
 
 
-def _check_kind(source: SourceText, layout: Layout, unit: str | None, shown: dict[str, str],
-                columns: dict[str, int]) -> None:
+def _check_kind(
+    source: SourceText,
+    layout: Layout,
+    unit: str | None,
+    shown: dict[str, str],
+    columns: dict[str, int],
+) -> None:
     """Refuse an angular file read with a length unit, and a length file with an angle unit."""
     if unit is None:
         return
@@ -275,11 +325,15 @@ def _check_kind(source: SourceText, layout: Layout, unit: str | None, shown: dic
             raise source.error(
                 f"line {line} says this is an angular measurement, but the deviation unit is "
                 f"{describe(unit)} (a length): give its angular unit (urad, mrad, arcsec or deg) "
-                "and read it as an angular line", line)
+                "and read it as an angular line",
+                line,
+            )
         if kind == "length" and angle_unit:
             raise source.error(
                 f"line {line} says this is a length measurement, but the deviation unit is "
-                f"{describe(unit)} (an angle): give its length unit (um, nm, mm or inch)", line)
+                f"{describe(unit)} (an angle): give its length unit (um, nm, mm or inch)",
+                line,
+            )
 
 
 # ---- rows --------------------------------------------------------------------------------
@@ -314,15 +368,19 @@ def _start_time(source: SourceText, fmt: TableFormat) -> float | None:
     for number, text in source.numbered():
         stripped = text.strip(BLANKS)
         if stripped.startswith(fmt.comment):
-            key, colon, value = stripped[len(fmt.comment):].partition(":")
+            key, colon, value = stripped[len(fmt.comment) :].partition(":")
             if colon and key.strip(BLANKS).lower() == "start_time":
                 start = _iso_time(value, source, number, "start_time")
     return start
 
 
 def _rows(
-    source: SourceText, layout: Layout, fmt: TableFormat, columns: dict[str, int],
-    units: dict[str, str | None], shown: dict[str, str],
+    source: SourceText,
+    layout: Layout,
+    fmt: TableFormat,
+    columns: dict[str, int],
+    units: dict[str, str | None],
+    shown: dict[str, str],
 ) -> _Rows:
     rows = _Rows(values={k: [] for k in columns if k not in ("run", "direction")})
     decimal_comma = layout.delimiter == ";"
@@ -335,8 +393,11 @@ def _rows(
             continue
         tokens = split_fields(text, layout.delimiter)
         if not row_fits(layout, len(tokens), needed):
-            against = (f"the header (line {layout.header_line})" if layout.header_line
-                       else f"the first row (line {layout.first_data_line})")
+            against = (
+                f"the header (line {layout.header_line})"
+                if layout.header_line
+                else f"the first row (line {layout.first_data_line})"
+            )
             raise source.error(
                 f"expected {layout.field_count} fields as in {against}, found {len(tokens)}",
                 number,
@@ -353,21 +414,29 @@ def _rows(
                 if word not in _DIRECTION_WORDS:
                     raise source.error(
                         f"direction: expected +1/-1, up/down or fwd/bwd, found {quote(token)}",
-                        number)
+                        number,
+                    )
                 rows.direction.append(_DIRECTION_WORDS[word])
             elif key == "time":
                 rows.values[key].append(_time_value(token, source, number, rows, units, shown))
             else:
                 value = parse_float(token, source, number, DESCRIPTION[key])
-                rows.values[key].append(_convert(key, value, source, number, units,
-                                                 deviation_factor, position_factor))
+                rows.values[key].append(
+                    _convert(key, value, source, number, units, deviation_factor, position_factor)
+                )
     if not rows.lines:
         raise source.error("the file holds no data rows", source.last_line)
     return rows
 
 
-def _time_value(token: str, source: SourceText, number: int, rows: _Rows,
-                units: dict[str, str | None], shown: dict[str, str]) -> float:
+def _time_value(
+    token: str,
+    source: SourceText,
+    number: int,
+    rows: _Rows,
+    units: dict[str, str | None],
+    shown: dict[str, str],
+) -> float:
     absolute = not is_number(token)
     if rows.absolute_time is not None and absolute != rows.absolute_time:
         raise source.error("time: the column mixes numbers and date-times", number)
@@ -380,29 +449,54 @@ def _time_value(token: str, source: SourceText, number: int, rows: _Rows,
     return check_magnitude(value, MAX_ABS_TIME_S, source, number, "time (s)")
 
 
-def _convert(key: str, value: float, source: SourceText, number: int,
-             units: dict[str, str | None], deviation_factor: float,
-             position_factor: float) -> float:
+def _convert(
+    key: str,
+    value: float,
+    source: SourceText,
+    number: int,
+    units: dict[str, str | None],
+    deviation_factor: float,
+    position_factor: float,
+) -> float:
     """A row's value in volucal's unit (deviations stay in the file's unit), checked."""
     unit = units.get(key)
     if key == "position":
-        return check_magnitude(value * position_factor, MAX_ABS_POSITION_MM, source, number,
-                               "position (mm)")
+        return check_magnitude(
+            value * position_factor, MAX_ABS_POSITION_MM, source, number, "position (mm)"
+        )
     if key == "deviation":
-        check_magnitude(value * deviation_factor, MAX_ABS_DEVIATION, source, number,
-                        f"deviation ({'µrad' if unit in ANGLE_UNITS else 'µm'})")
+        check_magnitude(
+            value * deviation_factor,
+            MAX_ABS_DEVIATION,
+            source,
+            number,
+            f"deviation ({'µrad' if unit in ANGLE_UNITS else 'µm'})",
+        )
         return value
     if key in ("air_temp", "material_temp"):
         factor, offset = TEMPERATURE_UNITS[unit or "c"]
         celsius = value * factor + offset
         low, high = AIR_TEMP_RANGE_C if key == "air_temp" else MATERIAL_TEMP_RANGE_C
-        return check_range(celsius, low, high, source, number, f"{DESCRIPTION[key]} (°C)",
-                           f"check temperature_unit (read as {describe(unit or 'c')})")
+        return check_range(
+            celsius,
+            low,
+            high,
+            source,
+            number,
+            f"{DESCRIPTION[key]} (°C)",
+            f"check temperature_unit (read as {describe(unit or 'c')})",
+        )
     if key == "pressure":
         kpa = value * PRESSURE_FACTOR_KPA[unit or "kpa"]
-        return check_range(kpa, *PRESSURE_RANGE_KPA, source, number, "air pressure (kPa)",
-                           f"{value:g} {describe(unit or 'kpa')} cannot be air pressure; check "
-                           "pressure_unit (mmHg? hPa?)")
+        return check_range(
+            kpa,
+            *PRESSURE_RANGE_KPA,
+            source,
+            number,
+            "air pressure (kPa)",
+            f"{value:g} {describe(unit or 'kpa')} cannot be air pressure; check "
+            "pressure_unit (mmHg? hPa?)",
+        )
     if key == "humidity":
         return check_range(value, *HUMIDITY_RANGE_PCT, source, number, "humidity (%RH)")
     return value
@@ -497,16 +591,20 @@ def _assemble(
     )
 
 
-def _check_time_order(source: SourceText, rows: _Rows, run_index: NDArray[np.int64],
-                      times: FloatArray) -> None:
+def _check_time_order(
+    source: SourceText, rows: _Rows, run_index: NDArray[np.int64], times: FloatArray
+) -> None:
     """Within a run, readings follow each other in time: a time that goes back is refused."""
     order = np.argsort(run_index, kind="stable")
     same_run = run_index[order][1:] == run_index[order][:-1]
     back = np.flatnonzero(same_run & (np.diff(times[order]) < 0))
     if back.size:
         row = int(order[back[0] + 1])
-        raise source.error("time goes back within a run here (readings of a run follow each "
-                           "other); check the time column", rows.lines[row])
+        raise source.error(
+            "time goes back within a run here (readings of a run follow each "
+            "other); check the time column",
+            rows.lines[row],
+        )
 
 
 def cluster_targets(
@@ -557,7 +655,7 @@ def _directions(
     order = np.argsort(run_index, kind="stable")
     bounds = np.searchsorted(run_index[order], np.arange(runs + 1))
     for run in range(runs):
-        members = order[bounds[run]:bounds[run + 1]]
+        members = order[bounds[run] : bounds[run + 1]]
         first_line = rows.lines[members[0]]
         if rows.direction:
             values = {rows.direction[m] for m in members}
@@ -608,9 +706,14 @@ def write_table(
     readings (NaN) are left out.
     """
     header = ["run", "direction", "position_mm", f"deviation_{deviation_unit}", "time_s"]
-    extra = [(name, values) for name, values in (("air_temp_c", data.air_temp_c),
-                                                ("material_temp_c", data.material_temp_c))
-             if values is not None]
+    extra = [
+        (name, values)
+        for name, values in (
+            ("air_temp_c", data.air_temp_c),
+            ("material_temp_c", data.material_temp_c),
+        )
+        if values is not None
+    ]
     header += [name for name, _ in extra]
     lines = [f"# start_time: {format_time_iso(data.start_time)}", delimiter.join(header)]
     visit = np.arange(data.targets_mm.size)

@@ -49,16 +49,29 @@ STANDARD_NAMES: dict[str, tuple[str, ...]] = {
     "direction": ("direction", "dir"),
     "time": ("time", "timestamp"),
     "air_temp": ("airtemp", "airtemperature", "air"),
-    "material_temp": ("materialtemp", "materialtemperature", "mattemp", "material", "mattemp1",
-                      "mt1temp", "mt1"),
+    "material_temp": (
+        "materialtemp",
+        "materialtemperature",
+        "mattemp",
+        "material",
+        "mattemp1",
+        "mt1temp",
+        "mt1",
+    ),
     "pressure": ("pressure", "airpressure", "airpress", "airprs", "press"),
     "humidity": ("humidity", "airhumidity", "airhumid", "airhmd", "rh", "relativehumidity"),
 }
 #: What each column is, for messages.
 DESCRIPTION = {
-    "position": "position", "deviation": "deviation", "run": "run", "direction": "direction",
-    "time": "time", "air_temp": "air temperature", "material_temp": "material temperature",
-    "pressure": "air pressure", "humidity": "humidity",
+    "position": "position",
+    "deviation": "deviation",
+    "run": "run",
+    "direction": "direction",
+    "time": "time",
+    "air_temp": "air temperature",
+    "material_temp": "material temperature",
+    "pressure": "air pressure",
+    "humidity": "humidity",
 }
 ENVIRONMENT_COLUMNS = ("air_temp", "material_temp", "pressure", "humidity")
 #: Deviation column names that say the values are angles.
@@ -67,8 +80,12 @@ HUMIDITY_UNITS = ("%", "pct", "%rh", "rh", "percent")
 
 _UNIT_IN_NAME = re.compile(r"^(?P<name>.*?)\s*(?:\[(?P<b>[^\]]*)\]|\((?P<p>[^)]*)\))\s*$")
 _KNOWN_SUFFIXES = (
-    set(DEVIATION_FACTOR) | set(POSITION_FACTOR) | set(TIME_FACTOR) | set(PRESSURE_FACTOR_KPA)
-    | set(TEMPERATURE_UNITS) | {"pct"}
+    set(DEVIATION_FACTOR)
+    | set(POSITION_FACTOR)
+    | set(TIME_FACTOR)
+    | set(PRESSURE_FACTOR_KPA)
+    | set(TEMPERATURE_UNITS)
+    | {"pct"}
 )
 _MARKER_LIKE = re.compile(r"^:[A-Z][A-Z_]*$")
 _KIND_LINE = re.compile(
@@ -107,8 +124,9 @@ class ColumnMap:
         return cls(**column_refs(mapping, sorted(f.name for f in fields(cls)), "column"))
 
 
-def column_refs(mapping: Mapping[str, object], known: Sequence[str], what: str
-                ) -> dict[str, ColumnRef]:
+def column_refs(
+    mapping: Mapping[str, object], known: Sequence[str], what: str
+) -> dict[str, ColumnRef]:
     """A column map's values checked: each key one of ``known``, each value a header name or a
     1-based column number; otherwise ValueError naming the key (``what``: "column", "grid
     column")."""
@@ -196,21 +214,28 @@ def shown_names(header: tuple[str, ...]) -> str:
     return "the first line is not a row of column names"
 
 
-def find_layout(source: SourceText, *, delimiter: str | None, data_marker: str | None,
-                comment: str = "#") -> Layout:
+def find_layout(
+    source: SourceText, *, delimiter: str | None, data_marker: str | None, comment: str = "#"
+) -> Layout:
     """The header, first data line and delimiter of a table (module notes)."""
     whitespace = delimiter is not None and delimiter.lower() in ("whitespace", "space", " ")
     fixed = None if whitespace else delimiter
     header_line: int | None
     if data_marker is not None:
-        marker = next((n for n, text in source.numbered()
-                       if text.strip(BLANKS) == data_marker.strip()), None)
+        marker = next(
+            (n for n, text in source.numbered() if text.strip(BLANKS) == data_marker.strip()), None
+        )
         if marker is None:
-            raise source.error(f"the data marker line {data_marker!r} was not found; check "
-                               "data_marker (--data-marker)", source.last_line)
+            raise source.error(
+                f"the data marker line {data_marker!r} was not found; check "
+                "data_marker (--data-marker)",
+                source.last_line,
+            )
         after = _next_text(source, marker + 1, comment)
-        before = next((n for n in range(marker - 1, 0, -1)
-                       if not is_comment(source.lines[n - 1], comment)), None)
+        before = next(
+            (n for n in range(marker - 1, 0, -1) if not is_comment(source.lines[n - 1], comment)),
+            None,
+        )
         if after is not None and not _all_numbers(source.lines[after - 1], fixed, whitespace):
             header_line, first_data = after, after + 1
         else:
@@ -235,8 +260,11 @@ def find_layout(source: SourceText, *, delimiter: str | None, data_marker: str |
     if header_line is not None:
         header = tuple(split_fields(source.lines[header_line - 1], chosen))
         if chosen is None and len(header) > row_count:
-            respaced = tuple(p for p in _SPACED.split(source.lines[header_line - 1].strip(BLANKS))
-                             if p.strip(BLANKS))
+            respaced = tuple(
+                p
+                for p in _SPACED.split(source.lines[header_line - 1].strip(BLANKS))
+                if p.strip(BLANKS)
+            )
             if len(respaced) == row_count:
                 header = tuple(p.strip(BLANKS) for p in respaced)
         short_rows = chosen is not None and len(header) > row_count  # empty trailing cells
@@ -244,15 +272,21 @@ def find_layout(source: SourceText, *, delimiter: str | None, data_marker: str |
             raise source.error(
                 f"the header (line {header_line}) has {len(header)} name(s) but the data rows "
                 f"have {row_count} field(s) (line {data_line}): quote names that hold spaces "
-                "(\"Lower Data\"), separate columns with tabs or two spaces, or give "
+                '("Lower Data"), separate columns with tabs or two spaces, or give '
                 "data_marker (--data-marker) when the data start below other text",
                 header_line,
             )
         empty = [i + 1 for i, name in enumerate(header) if not name]
         if empty:
             raise source.error(f"column {empty[0]} of the header has no name", header_line)
-    return Layout(header, header_line, first_data, chosen, len(header) or row_count,
-                  _declared_kind(source, header_line or first_data))
+    return Layout(
+        header,
+        header_line,
+        first_data,
+        chosen,
+        len(header) or row_count,
+        _declared_kind(source, header_line or first_data),
+    )
 
 
 def row_fits(layout: Layout, fields_in_row: int, needed: int) -> bool:
@@ -284,7 +318,7 @@ def _refuse_unmarked_preamble(source: SourceText, comment: str) -> None:
         if _MARKER_LIKE.match(stripped):
             raise source.error(
                 f"the data seem to start after line {number} ({stripped!r}): give "
-                f"data_marker = \"{stripped}\" in the plan (--data-marker {stripped} on the "
+                f'data_marker = "{stripped}" in the plan (--data-marker {stripped} on the '
                 "command line)",
                 number,
             )
@@ -303,7 +337,10 @@ def _declared_kind(source: SourceText, stop: int) -> tuple[str, int] | None:
 
 
 def resolve_columns(
-    source: SourceText, layout: Layout, columns: ColumnMap, wanted: tuple[str, ...],
+    source: SourceText,
+    layout: Layout,
+    columns: ColumnMap,
+    wanted: tuple[str, ...],
     required: tuple[str, ...],
 ) -> tuple[dict[str, int], dict[str, str | None], dict[str, str]]:
     """0-based index, the header's unit and the name (for messages) of each column found.
@@ -343,10 +380,12 @@ def resolve_columns(
                     where,
                 )
             listed = shown_names(layout.header)
-            hint = (f"map it with columns = {{ {f.name} = \"…\" }} (--columns {f.name}=…)"
-                    if listed.startswith("the header has") else
-                    "if the table starts below other text, give data_marker (--data-marker): "
-                    "the line just before its header")
+            hint = (
+                f'map it with columns = {{ {f.name} = "…" }} (--columns {f.name}=…)'
+                if listed.startswith("the header has")
+                else "if the table starts below other text, give data_marker (--data-marker): "
+                "the line just before its header"
+            )
             raise source.error(
                 f"no {DESCRIPTION[f.name]} column named {ref or f.name!r}; {listed}; {hint}",
                 where,
@@ -355,17 +394,19 @@ def resolve_columns(
             listed = ", ".join(repr(layout.header[i]) for i in found)
             raise source.error(
                 f"{len(found)} columns could be the {DESCRIPTION[f.name]} ({listed}); name one "
-                f"with columns = {{ {f.name} = \"…\" }} (--columns {f.name}=…) or by number",
+                f'with columns = {{ {f.name} = "…" }} (--columns {f.name}=…) or by number',
                 where,
             )
         index[f.name] = found[0]
         header_units[f.name] = names[found[0]][1] if names else None
-        shown[f.name] = (repr(layout.header[found[0]]) if layout.header
-                         else f"number {found[0] + 1}")
+        shown[f.name] = repr(layout.header[found[0]]) if layout.header else f"number {found[0] + 1}"
     taken: dict[int, str] = {}
     for key, column in index.items():
         if column in taken:
-            raise source.error(f"column {shown[key]} is mapped as both {taken[column]} and "
-                               f"{key}; map each to its own column", where)
+            raise source.error(
+                f"column {shown[key]} is mapped as both {taken[column]} and "
+                f"{key}; map each to its own column",
+                where,
+            )
         taken[column] = key
     return index, header_units, shown

@@ -48,9 +48,20 @@ ColumnRef = str | int
 
 #: Spellings of the temperature units (lower case) → "c", "k" or "f".
 TEMPERATURE_UNITS = {
-    "c": "c", "°c": "c", "degc": "c", "deg c": "c", "deg_c": "c", "celsius": "c", "℃": "c",
-    "k": "k", "kelvin": "k",
-    "f": "f", "°f": "f", "degf": "f", "deg f": "f", "fahrenheit": "f",
+    "c": "c",
+    "°c": "c",
+    "degc": "c",
+    "deg c": "c",
+    "deg_c": "c",
+    "celsius": "c",
+    "℃": "c",
+    "k": "k",
+    "kelvin": "k",
+    "f": "f",
+    "°f": "f",
+    "degf": "f",
+    "deg f": "f",
+    "fahrenheit": "f",
 }
 #: Cell texts that mean "no value" (a gap) rather than a malformed number.
 MISSING = {"", "nan", "na", "n/a", "-", "--", "null", "none", "?"}
@@ -144,23 +155,30 @@ def read_thermal_table(
         for index, (plain, _) in enumerate(names):
             if _plain(plain) in _TIME_NAMES and index not in used:
                 used.add(index)
-                notes.append(f"column {_label(header, index)} is not used: the declared sample "
-                             f"interval of {fmt.sample_interval_s:g} s gives the time")
+                notes.append(
+                    f"column {_label(header, index)} is not used: the declared sample "
+                    f"interval of {fmt.sample_interval_s:g} s gives the time"
+                )
     if fmt.temperatures is None:
         width = len(header) if header else _width(source, fmt, delimiter, where)
         temp_cols = [k for k in range(width) if k not in used]
     else:
-        temp_cols = [_column(source, header, names, ref, "temperature", where)
-                     for ref in fmt.temperatures]
+        temp_cols = [
+            _column(source, header, names, ref, "temperature", where) for ref in fmt.temperatures
+        ]
     clash = sorted(set(temp_cols) & used)
     if clash:
-        raise source.error(f"column {_label(header, clash[0])} is mapped as a temperature and "
-                           "as time or an error", where)
+        raise source.error(
+            f"column {_label(header, clash[0])} is mapped as a temperature and as time or an error",
+            where,
+        )
     if len(set(error_cols)) != len(error_cols):
         raise source.error("the same column is mapped to two error channels", where)
 
-    error_units = [_error_unit(source, e, names, k, header, where)
-                   for e, k in zip(fmt.errors, error_cols, strict=True)]
+    error_units = [
+        _error_unit(source, e, names, k, header, where)
+        for e, k in zip(fmt.errors, error_cols, strict=True)
+    ]
     temp_keys = _temperature_units(source, fmt, names, temp_cols, header, where)
     time_factor = _time_factor(source, fmt, names, time_col, header, where)
 
@@ -181,7 +199,9 @@ def read_thermal_table(
         elif time_factor is None:
             raise source.error(
                 f"time column {_label(header, time_col)} has no unit: declare it (e.g. "
-                "--time-unit s; s, min, h or ms)", where)
+                "--time-unit s; s, min, h or ms)",
+                where,
+            )
         else:
             time_s = (raw_time - raw_time[0]) * time_factor
         time_source = f"time column {_label(header, time_col)}"
@@ -195,14 +215,16 @@ def read_thermal_table(
         factor = DEVIATION_FACTOR[unit]
         kept = "urad" if unit in ANGLE_UNITS else "um"
         channel_name = spec.name or (names[col][0] if header else f"error{j + 1}")
-        errors.append(ErrorChannel(channel_name, kept, rows[:, j] * factor * spec.sign, unit,
-                                   spec.sign))
+        errors.append(
+            ErrorChannel(channel_name, kept, rows[:, j] * factor * spec.sign, unit, spec.sign)
+        )
     temperatures = []
     offset = len(error_cols)
     for j, col in enumerate(temp_cols):
         label = names[col][0] if header else f"T{col + 1}"
-        temperatures.append(TemperatureChannel(label, to_celsius(rows[:, offset + j],
-                                                                 temp_keys[j])))
+        temperatures.append(
+            TemperatureChannel(label, to_celsius(rows[:, offset + j], temp_keys[j]))
+        )
     usable, excluded = split_stuck_sensors(temperatures, fmt.stuck_span_c)
     warnings = tuple(notes) + tuple(e.reason for e in excluded) + tuple(time_gaps(time_s))
     source_path = Path(source.path)
@@ -241,14 +263,14 @@ def _numeric(token: str) -> bool:
     return True
 
 
-def _layout(source: SourceText, fmt: ThermalTableFormat) -> tuple[int | None, str | None,
-                                                                   tuple[str, ...]]:
+def _layout(
+    source: SourceText, fmt: ThermalTableFormat
+) -> tuple[int | None, str | None, tuple[str, ...]]:
     first = next((n for n, text in source.numbered() if not _is_comment(text, fmt)), None)
     if first is None:
         raise source.error("the file holds no data rows", source.last_line)
     text = source.lines[first - 1]
-    whitespace = fmt.delimiter is not None and fmt.delimiter.lower() in (
-        "whitespace", "space", " ")
+    whitespace = fmt.delimiter is not None and fmt.delimiter.lower() in ("whitespace", "space", " ")
     delimiter = None if whitespace else (fmt.delimiter or detect_delimiter(text))
     tokens = split_fields(text, delimiter)
     if all(_numeric(t) for t in tokens if t):
@@ -269,9 +291,15 @@ def _split_unit(name: str) -> tuple[str, str | None]:
         unit = match.group("b") if match.group("b") is not None else match.group("p")
         return match.group("name").strip(), unit.strip()
     base, underscore, suffix = text.rpartition("_")
-    if underscore and base and (normalise_unit(suffix) in DEVIATION_FACTOR
-                                or normalise_unit(suffix) in TIME_FACTOR
-                                or suffix.lower() in TEMPERATURE_UNITS):
+    if (
+        underscore
+        and base
+        and (
+            normalise_unit(suffix) in DEVIATION_FACTOR
+            or normalise_unit(suffix) in TIME_FACTOR
+            or suffix.lower() in TEMPERATURE_UNITS
+        )
+    ):
         return base, suffix
     return text, None
 
@@ -280,27 +308,41 @@ def _label(header: tuple[str, ...], index: int) -> str:
     return repr(header[index]) if header else f"{index + 1}"
 
 
-def _column(source: SourceText, header: tuple[str, ...], names: list[tuple[str, str | None]],
-            ref: ColumnRef, role: str, where: int) -> int:
+def _column(
+    source: SourceText,
+    header: tuple[str, ...],
+    names: list[tuple[str, str | None]],
+    ref: ColumnRef,
+    role: str,
+    where: int,
+) -> int:
     if isinstance(ref, int):
         if header and ref > len(header):
-            raise source.error(f"{role} column {ref}: the header has {len(header)} columns",
-                               where)
+            raise source.error(f"{role} column {ref}: the header has {len(header)} columns", where)
         return ref - 1
     if not header:
-        raise source.error(f"the file has no header row: give the {role} column {ref!r} by "
-                           "number (1 is the first column)", where)
+        raise source.error(
+            f"the file has no header row: give the {role} column {ref!r} by "
+            "number (1 is the first column)",
+            where,
+        )
     wanted = _plain(ref)
     for index, text in enumerate(header):
         if _plain(text) == wanted or _plain(names[index][0]) == wanted:
             return index
-    raise source.error(f"no {role} column named {ref!r}; the header has "
-                       f"{', '.join(repr(h) for h in header)}", where)
+    raise source.error(
+        f"no {role} column named {ref!r}; the header has {', '.join(repr(h) for h in header)}",
+        where,
+    )
 
 
-def _time_column(source: SourceText, header: tuple[str, ...],
-                 names: list[tuple[str, str | None]], fmt: ThermalTableFormat,
-                 where: int) -> int | None:
+def _time_column(
+    source: SourceText,
+    header: tuple[str, ...],
+    names: list[tuple[str, str | None]],
+    fmt: ThermalTableFormat,
+    where: int,
+) -> int | None:
     if fmt.time is not None:
         return _column(source, header, names, fmt.time, "time", where)
     if fmt.sample_interval_s is not None:
@@ -310,41 +352,60 @@ def _time_column(source: SourceText, header: tuple[str, ...],
             return index
     raise source.error(
         "no time column: name it (e.g. --time Time) or declare how far apart the rows are "
-        "(e.g. --interval 60s for one sample a minute)", where)
+        "(e.g. --interval 60s for one sample a minute)",
+        where,
+    )
 
 
-def _width(source: SourceText, fmt: ThermalTableFormat, delimiter: str | None,
-           where: int) -> int:
+def _width(source: SourceText, fmt: ThermalTableFormat, delimiter: str | None, where: int) -> int:
     for number, text in source.numbered():
         if number >= where and not _is_comment(text, fmt):
             return len(split_fields(text, delimiter))
     return 0
 
 
-def _error_unit(source: SourceText, spec: ErrorColumn, names: list[tuple[str, str | None]],
-                index: int, header: tuple[str, ...], where: int) -> str:
+def _error_unit(
+    source: SourceText,
+    spec: ErrorColumn,
+    names: list[tuple[str, str | None]],
+    index: int,
+    header: tuple[str, ...],
+    where: int,
+) -> str:
     declared = normalise_unit(spec.unit) if spec.unit is not None else None
     header_unit = names[index][1] if header else None
     from_header = normalise_unit(header_unit) if header_unit else None
     label = _label(header, index)
     if declared and from_header and declared != from_header:
-        raise source.error(f"error column {label}: the unit is declared as {spec.unit!r} but the "
-                           f"header says {names[index][1]!r}", where)
+        raise source.error(
+            f"error column {label}: the unit is declared as {spec.unit!r} but the "
+            f"header says {names[index][1]!r}",
+            where,
+        )
     unit = declared or from_header
     if unit is None:
         raise source.error(
             f"error column {label} has no unit: declare it (e.g. --error "
-            f"\"{names[index][0] if header else index + 1}=um\"; µm, mm, nm, µrad, arcsec…)",
-            where)
+            f'"{names[index][0] if header else index + 1}=um"; µm, mm, nm, µrad, arcsec…)',
+            where,
+        )
     if unit not in DEVIATION_FACTOR:
-        raise source.error(f"error column {label}: unit {unit!r} is not supported; use one of "
-                           f"{', '.join(DEVIATION_FACTOR)}", where)
+        raise source.error(
+            f"error column {label}: unit {unit!r} is not supported; use one of "
+            f"{', '.join(DEVIATION_FACTOR)}",
+            where,
+        )
     return unit
 
 
-def _temperature_units(source: SourceText, fmt: ThermalTableFormat,
-                       names: list[tuple[str, str | None]], columns: list[int],
-                       header: tuple[str, ...], where: int) -> list[str]:
+def _temperature_units(
+    source: SourceText,
+    fmt: ThermalTableFormat,
+    names: list[tuple[str, str | None]],
+    columns: list[int],
+    header: tuple[str, ...],
+    where: int,
+) -> list[str]:
     """The unit key ("c", "k", "f") of every temperature column: the declared one, or the
     header's; a column with neither is an error asking for one."""
     declared = temperature_unit_key(fmt.temperature_unit) if fmt.temperature_unit else None
@@ -354,22 +415,35 @@ def _temperature_units(source: SourceText, fmt: ThermalTableFormat,
         key = TEMPERATURE_UNITS.get(text.strip().lower()) if text else None
         label = _label(header, index)
         if text and key is None:
-            raise source.error(f"temperature column {label}: unit {text!r} is not a "
-                               "temperature unit (°C, K or °F)", where)
+            raise source.error(
+                f"temperature column {label}: unit {text!r} is not a "
+                "temperature unit (°C, K or °F)",
+                where,
+            )
         if declared is not None and key is not None and key != declared:
-            raise source.error(f"temperature column {label}: the unit is declared as "
-                               f"{fmt.temperature_unit!r} but the header says {text!r}", where)
+            raise source.error(
+                f"temperature column {label}: the unit is declared as "
+                f"{fmt.temperature_unit!r} but the header says {text!r}",
+                where,
+            )
         if key is None and declared is None:
             raise source.error(
                 f"temperature column {label} has no unit: declare it (e.g. "
-                "--temperature-unit C for °C; K and °F are converted)", where)
+                "--temperature-unit C for °C; K and °F are converted)",
+                where,
+            )
         keys.append(key or declared)
     return keys  # type: ignore[return-value]
 
 
-def _time_factor(source: SourceText, fmt: ThermalTableFormat,
-                 names: list[tuple[str, str | None]], index: int | None,
-                 header: tuple[str, ...], where: int) -> float | None:
+def _time_factor(
+    source: SourceText,
+    fmt: ThermalTableFormat,
+    names: list[tuple[str, str | None]],
+    index: int | None,
+    header: tuple[str, ...],
+    where: int,
+) -> float | None:
     """Seconds per unit of a numeric time column; None when no unit is known (date-times need
     none; numbers then raise once the rows show them)."""
     if index is None:
@@ -378,23 +452,33 @@ def _time_factor(source: SourceText, fmt: ThermalTableFormat,
     header_unit = names[index][1] if header else None
     from_header = normalise_unit(header_unit) if header_unit else None
     if declared and from_header and declared != from_header:
-        raise source.error(f"time column {_label(header, index)}: the unit is declared as "
-                           f"{fmt.time_unit!r} but the header says {names[index][1]!r}", where)
+        raise source.error(
+            f"time column {_label(header, index)}: the unit is declared as "
+            f"{fmt.time_unit!r} but the header says {names[index][1]!r}",
+            where,
+        )
     unit = declared or from_header
     if unit is None:
         return None
     if unit not in TIME_FACTOR:
-        raise source.error(f"time unit {unit!r} is not supported; use one of "
-                           f"{', '.join(TIME_FACTOR)}", where)
+        raise source.error(
+            f"time unit {unit!r} is not supported; use one of {', '.join(TIME_FACTOR)}", where
+        )
     return TIME_FACTOR[unit]
 
 
 # ---- rows --------------------------------------------------------------------------------
 
 
-def _rows(source: SourceText, fmt: ThermalTableFormat, delimiter: str | None,
-          header_line: int | None, columns: list[int], labels: list[str],
-          time_col: int | None) -> tuple[np.ndarray, list[int], bool]:
+def _rows(
+    source: SourceText,
+    fmt: ThermalTableFormat,
+    delimiter: str | None,
+    header_line: int | None,
+    columns: list[int],
+    labels: list[str],
+    time_col: int | None,
+) -> tuple[np.ndarray, list[int], bool]:
     """Values (rows × mapped columns, time last when mapped), their line numbers, and whether
     the times are date-times."""
     decimal_comma = delimiter == ";"
@@ -404,7 +488,8 @@ def _rows(source: SourceText, fmt: ThermalTableFormat, delimiter: str | None,
     lines: list[int] = []
     absolute: bool | None = None
     roles = ["error"] * len(fmt.errors) + ["temperature"] * (
-        len(columns) - len(fmt.errors) - (1 if time_col is not None else 0))
+        len(columns) - len(fmt.errors) - (1 if time_col is not None else 0)
+    )
     if time_col is not None:
         roles.append("time")
     for number in range(start, len(source.lines) + 1):
@@ -416,7 +501,9 @@ def _rows(source: SourceText, fmt: ThermalTableFormat, delimiter: str | None,
             short = next(k for k, c in enumerate(columns) if c >= len(tokens))
             raise source.error(
                 f"column {labels[short]} ({roles[short]}) has no value: the row has "
-                f"{len(tokens)} fields, {needed} are needed (a gap or a row cut short)", number)
+                f"{len(tokens)} fields, {needed} are needed (a gap or a row cut short)",
+                number,
+            )
         row: list[float] = []
         for k, column in enumerate(columns):
             token = tokens[column].strip()
@@ -427,8 +514,9 @@ def _rows(source: SourceText, fmt: ThermalTableFormat, delimiter: str | None,
                 if absolute is None:
                     absolute = is_date
                 elif absolute != is_date:
-                    raise source.error(f"time column {labels[k]}: mixes numbers and "
-                                       "date-times", number)
+                    raise source.error(
+                        f"time column {labels[k]}: mixes numbers and date-times", number
+                    )
                 row.append(value)
                 continue
             row.append(_channel_value(source, token, number, labels[k], roles[k]))
@@ -444,15 +532,19 @@ def _channel_value(source: SourceText, token: str, line: int, label: str, role: 
         what = "a gap" if token == "" or token.lower() not in ("nan",) else "NaN"
         raise source.error(
             f"column {label} ({role}) has no value ({what}): fill the gap (e.g. interpolate) "
-            f"or leave the column out", line)
+            f"or leave the column out",
+            line,
+        )
     try:
         value = float(token)
     except ValueError:
-        raise source.error(f"column {label} ({role}): expected a number, found {token!r}",
-                           line) from None
+        raise source.error(
+            f"column {label} ({role}): expected a number, found {token!r}", line
+        ) from None
     if not math.isfinite(value):
-        raise source.error(f"column {label} ({role}): expected a finite number, found "
-                           f"{token!r}", line)
+        raise source.error(
+            f"column {label} ({role}): expected a finite number, found {token!r}", line
+        )
     return value
 
 
@@ -465,14 +557,17 @@ def _time_value(source: SourceText, token: str, line: int, label: str) -> tuple[
         pass
     else:
         if not math.isfinite(value):
-            raise source.error(f"time column {label}: expected a finite number, found "
-                               f"{token!r}", line)
+            raise source.error(
+                f"time column {label}: expected a finite number, found {token!r}", line
+            )
         return value, False
     try:
         moment = datetime.fromisoformat(token.strip('"').replace("Z", "+00:00"))
     except ValueError:
-        raise source.error(f"time column {label}: expected a number or an ISO 8601 date-time, "
-                           f"found {token!r}", line) from None
+        raise source.error(
+            f"time column {label}: expected a number or an ISO 8601 date-time, found {token!r}",
+            line,
+        ) from None
     if moment.tzinfo is None:
         moment = moment.replace(tzinfo=UTC)
     return moment.timestamp(), True
@@ -486,4 +581,6 @@ def _check_time(source: SourceText, time: np.ndarray, lines: list[int], label: s
         word = "repeats" if steps[k - 1] == 0 else "goes back"
         raise source.error(
             f"time column {label} {word} ({time[k]:g} after {time[k - 1]:g} on line "
-            f"{lines[k - 1]}): the samples must be in time order, one per time", lines[k])
+            f"{lines[k - 1]}): the samples must be in time order, one per time",
+            lines[k],
+        )
