@@ -293,9 +293,9 @@ def screen_series(
                 int(k) + 1,
                 float(time[k]),
                 float(x[k]),
-                f"{name or 'value'} at sample {k + 1} ({time[k]:g} s) is {r:+.3f} {symbol} from the "
-                f"smooth trend of its neighbours: {abs(r) / sigma:.1f} σ of the scatter about the "
-                f"trend (σ = {sigma:.3f} {symbol})",
+                f"{name or 'value'} at sample {k + 1} ({time[k]:g} s) is {r:+.3f} {symbol} from "
+                f"the smooth trend of its neighbours: {abs(r) / sigma:.1f} σ of the scatter about "
+                f"the trend (σ = {sigma:.3f} {symbol})",
                 abs(r) / sigma,
             )
         )

@@ -1085,10 +1085,10 @@ def _uncertainty(project: Project, budget: UncertaintyBudget, results: _Results)
                 "The uncertainties given are expanded uncertainties U = k·u with coverage factor "
                 "k = 2 (about 95 % for a normal distribution; GUM, ISO 230-9). The standard "
                 "uncertainty u of an identified error combines the statistical covariance of the "
-                "weighted least-squares fit (the readings' scatter propagated through the plan) with "
-                "the set-up budget below, which acts on positioning errors as a scale error over the "
-                "distance from the reference. Rectangular distributions are divided by √3. Combined "
-                f"scale uncertainty: {_f(budget.scale_ppm(), 3)} ppm." + sigma
+                "weighted least-squares fit (the readings' scatter propagated through the plan) "
+                "with the set-up budget below, which acts on positioning errors as a scale error "
+                "over the distance from the reference. Rectangular distributions are divided by "
+                f"√3. Combined scale uncertainty: {_f(budget.scale_ppm(), 3)} ppm." + sigma
             ),
             Table(
                 ("budget term", "value", "unit", "meaning", "from"),

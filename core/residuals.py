@@ -139,8 +139,8 @@ class Finding:
     where: str
     #: drop of the weighted residual sum of squares (in units of σ²) the effect would bring
     gain: float = 0.0
-    #: for a searched cycle: a period the targets cannot tell from its own (mm), or None
-    alias_mm: float | None = None
+    #: for a searched cycle: the periods the targets cannot tell from its own (mm), if any
+    alias_mm: tuple[float, ...] = ()
 
     def evidence(self) -> dict[str, object]:
         return {
@@ -210,7 +210,7 @@ class LoopResult:
         return tuple(self.final.effects)  # type: ignore[arg-type]
 
     def effects_report(self) -> list[dict[str, object]]:
-        out = []
+        out: list[dict[str, object]] = []
         for effect, values, cov in zip(
             self.final.effects,
             self.final.effect_parameters,
@@ -530,7 +530,7 @@ class _Diagnosis:
         effect: Effect,
         trials: int = 1,
         where: str | None = None,
-        alias_mm: float | None = None,
+        alias_mm: tuple[float, ...] = (),
     ) -> Finding | None:
         """Test one candidate (unless already kept) and keep it as a finding when the model
         cannot absorb it all."""
@@ -704,8 +704,8 @@ def _cyclic_candidates(
     if found is not None and not harmonic_of_kept:  # a kept cycle's harmonic is tested above
         period, trials, alias = found
         where = f"along {axis}, period {period:.4g} mm"
-        if alias is not None:
-            where += f" (or its alias at {alias:.4g} mm)"
+        if alias:
+            where += f" (or its alias at {_periods_text(alias)})"
         one = diagnosis.add(Cyclic(axis, period, (1,), ref, True), trials, where, alias)
         if one is not None and 2 * shortest <= period:
             two = diagnosis.add(
@@ -739,13 +739,14 @@ def _search_period(
     longest: float,
     resolved: float | None = None,
     spacing: float | None = None,
-) -> tuple[float, int, float | None] | None:
+) -> tuple[float, int, tuple[float, ...]] | None:
     """Least-squares periodogram along an axis from ``shortest`` to ``longest``: the best period,
     refined continuously, and the number of independent frequencies searched. A period below
     ``resolved`` (twice the finest spacing) wins only by :data:`ALIAS_MARGIN` over every other
     peak; otherwise the best peak at or above ``resolved`` does. With the targets' ``spacing``,
-    the third value is an alias period that fits the readings about as well (gain within
-    :data:`ALIAS_MARGIN`), or None."""
+    the third value holds the alias periods that fit the readings about as well (gain within
+    :data:`ALIAS_MARGIN`): on exactly regular targets both the targets' frequency less and plus
+    the cycle's do."""
     tester = diagnosis.tester
     k = AXIS_INDEX[axis]
     positions, _, weight = tester.target_sums(k)
@@ -822,19 +823,22 @@ def _search_period(
             options={"xatol": 1e-7},
         )
         frequency, own = float(refined.x), -float(refined.fun)
-    alias = None
+    alias: tuple[float, ...] = ()
     if spacing is not None and np.isfinite(spacing) and spacing > 0:
         # the targets' own frequency shifts a cycle to periods that fit the same readings where
-        # the spacing is regular: one of them as good as the found period is its alias
+        # the spacing is regular: each of them as good as the found period is its alias
         rivals = [
             f
             for f in (1.0 / spacing - frequency, 1.0 / spacing + frequency)
             if 0.0 < f <= 0.5 and abs(f - frequency) > 2.0 / span
         ]
-        gains_at = {f: projected_gain(f) for f in rivals}
-        if gains_at and max(gains_at.values()) * ALIAS_MARGIN >= own:
-            alias = 1.0 / max(gains_at, key=lambda f: gains_at[f])
+        alias = tuple(sorted(1.0 / f for f in rivals if projected_gain(f) * ALIAS_MARGIN >= own))
     return 1.0 / frequency, trials, alias
+
+
+def _periods_text(periods: Sequence[float]) -> str:
+    """'8.999 mm' or '8.999 mm and 18.28 mm'."""
+    return " and ".join(f"{p:.4g} mm" for p in periods)
 
 
 def _thermal_candidates(
@@ -1577,7 +1581,7 @@ def close_loop(
     steps: list[Step] = []
     refused: dict[EffectKey, float] = {}  # F statistic at which a candidate was last refused
     ambiguous: dict[EffectKey, str] = {}  # kept surfaces a rival predicts as well
-    aliased: dict[str, float] = {}  # per axis: the alias period of a searched cycle kept
+    aliased: dict[str, tuple[float, ...]] = {}  # per axis: a kept searched cycle's aliases
     number = 0
     while number < options.max_steps:
         number += 1
@@ -1628,7 +1632,7 @@ def close_loop(
         if alike is not None:
             ambiguous[chosen.finding.effect.key] = alike
         effect = chosen.finding.effect
-        if chosen.finding.alias_mm is not None:
+        if chosen.finding.alias_mm:
             aliased[effect.axis] = chosen.finding.alias_mm  # type: ignore[index]
         elif isinstance(effect, Cyclic) and not any(
             isinstance(e, Cyclic) and e.period_mm == effect.period_mm for e in kept
@@ -1643,8 +1647,8 @@ def close_loop(
     warnings += [ambiguous[e.key] for e in kept if e.key in ambiguous]
     warnings += [
         f"the cycle of {e.axis} kept at {e.period_mm:.4g} mm fits the readings about as well at "
-        f"{aliased[e.axis]:.4g} mm: the targets along {e.axis} are too regular to tell a cycle "
-        "from its alias, and between the targets the two differ; targets spaced irregularly "
+        f"{_periods_text(aliased[e.axis])}: the targets along {e.axis} are too regular to tell "
+        "a cycle from its aliases, and between the targets they differ; targets spaced irregularly "
         "(as ISO 230-2 advises) tell them apart"
         for e in kept
         if isinstance(e, Cyclic) and e.searched and e.axis in aliased
@@ -1872,21 +1876,31 @@ def _audit(
     steps: list[Step],
     number: int,
 ) -> tuple[Identification, CrossValidation, list[Effect]]:
-    """With every kept effect in the model, each effect of one shape must have one size on every
-    line that shows it (:func:`_sizes`); the one that varies most beyond that is taken out and
-    the rest refitted, until all agree. Done at the end because while another effect was still
-    missing, the lines it spoils could not agree. A finer function is a basis whose every line
-    sees a slice of its own: how well each slice fits is the cross-validation's question. A
-    low-order surface over two axes couples the lines that cross it: fitted to something that
-    is not a surface (a scale that oscillates in time, read as depending on where each line
-    lies), its fitted values fit some lines at twice the size and others at none."""
+    """With every kept effect in the model, each must still be physically plausible (a refit with
+    later effects can move an Abbe offset's lever arm past the optics' reach), and each effect of
+    one shape must have one size on every line that shows it (:func:`_sizes`); an implausible
+    one, else the one that varies most, is taken out and the rest refitted, until all agree.
+    Done at the end because while another effect was still missing, the lines it spoils could
+    not agree. A finer function is a basis whose every line sees a slice of its own: how well
+    each slice fits is the cross-validation's question. A low-order surface over two axes
+    couples the lines that cross it: fitted to something that is not a surface (a scale that
+    oscillates in time, read as depending on where each line lies), its fitted values fit some
+    lines at twice the size and others at none."""
     while kept:
         failures = []
         for index, effect in enumerate(current.effects):
             assert isinstance(effect, Effect)
+            values = current.effect_parameters[index]
+            implausible = effect.implausible(
+                values, current.effect_covariances[index], options.plausibility
+            )
+            if implausible is not None:
+                # plausible when kept, moved past the limits by the effects kept after it
+                reason = f"implausible with every kept effect in the model: {implausible}"
+                failures.append((np.inf, effect, reason))
+                continue
             if effect.kind not in ONE_SHAPE:
                 continue
-            values = current.effect_parameters[index]
             sizes = _sizes(current, effect.design(current.readings, current.model) @ values)
             why = _unequal(sizes, options)
             if why is not None:

@@ -205,8 +205,8 @@ def split_stuck_sensors(
             excluded.append(
                 ExcludedSensor(
                     channel.name,
-                    f"temperature {channel.name!r} is stuck at {values[0]:g} °C for the whole record "
-                    "(a sensor that does not read); it is left out of the model",
+                    f"temperature {channel.name!r} is stuck at {values[0]:g} °C for the whole "
+                    "record (a sensor that does not read); it is left out of the model",
                 )
             )
         else:

@@ -166,8 +166,8 @@ def section_from_summary(
     if flags:
         blocks.append(
             Paragraph(
-                f"{len(flags)} sample(s) leave the smooth trend of the record (flagged by the outlier "
-                "screen, kept in the fit): "
+                f"{len(flags)} sample(s) leave the smooth trend of the record (flagged by the "
+                "outlier screen, kept in the fit): "
                 + "; ".join(f"sample {f['sample']}" for f in flags)
                 + ".",
                 "note",

@@ -230,13 +230,15 @@ class _HalPlan:
                 f"external offset of axis {axis.upper()}",
                 f"# Source after {self.prefix}.hal and after motion is loaded (a later [HAL] "
                 "HALFILE).",
-                f"# The INI needs [AXIS_{axis.upper()}]OFFSET_AV_RATIO (e.g. 0.1): the share of the "
-                "axis' velocity",
+                f"# The INI needs [AXIS_{axis.upper()}]OFFSET_AV_RATIO (e.g. 0.1): the share of "
+                "the axis' velocity",
                 "# and acceleration that external offsets may use.",
-                f"# Offset = {self.comp_signal} = -predicted error, in counts of {_num(o.count_mm)} mm "
-                "(truncated",
-                "# toward zero: within one count). LinuxCNC applies changes of the counts while the",
-                "# offset is enabled and zeroes its register at each machine start, so the counts are",
+                f"# Offset = {self.comp_signal} = -predicted error, in counts of "
+                f"{_num(o.count_mm)} mm (truncated",
+                "# toward zero: within one count). LinuxCNC applies changes of the counts while "
+                "the",
+                "# offset is enabled and zeroes its register at each machine start, so the counts "
+                "are",
                 "# held at 0 until the machine is on and homed, then follow the compensation.",
                 "",
                 f"net {self.prefix}-machine-on motion.motion-enabled => {ready}.in0",
