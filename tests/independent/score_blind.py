@@ -4,7 +4,10 @@ method; this module only reads the manifest.
 
 A catalogue effect counts as *visible* when what the generator's own rigid-body fit leaves of it
 (``after_rigid_fit_peak``) reaches 4× the noise, the bar of :mod:`loop_scenarios`; the
-generator's own, lower bar (2.5× the noise, at least 0.4 µm) is kept beside it.
+generator's own, lower bar (2.5× the noise, at least 0.4 µm) is kept beside it. The lines that
+show an effect are those where ``after_rigid_fit_per_line`` reaches the same bar; with the
+manifest's environment they decide which visible effects are attributable
+(:meth:`loop_scenarios.Outcome.attributable`).
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from loop_scenarios import VISIBLE_FACTOR, Outcome, _gauged, kept_effects
+from loop_scenarios import MATERIAL_CHANGE_C, VISIBLE_FACTOR, Outcome, _gauged, kept_effects
 
 from tests.blind.scenarios import build_scenario, write_scenario
 
@@ -29,6 +32,23 @@ def _where(effect: dict) -> tuple[str, str]:
     if kind == "local":
         return kind, f"{effect['axis']} in {effect['direction']}"
     return kind, effect["axis"]
+
+
+def _material_logged(truth: dict) -> bool:
+    """Whether the logs carry a material temperature that changes over the session by more
+    than MATERIAL_CHANGE_C: the manifest's flag, and the warming its thermal drift (the logged
+    temperature is base + ΔT(t), scenarios.set_environment) brings from the first reading to
+    the session's end; without a drift the logged temperature is constant."""
+    if not truth["session"]["environment"]["material_temperature_logged"]:
+        return False
+    duration_s = float(truth["session"]["duration_s"])
+    for effect in truth["effects"]:
+        if effect["kind"] == "thermal_drift":
+            p = effect["parameters"]
+            rise = float(p["delta_T_inf_K"]) * (1.0 - np.exp(-duration_s / (60 * p["tau_min"])))
+            if abs(rise) > MATERIAL_CHANGE_C:
+                return True
+    return False
 
 
 def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[str, float], float]:  # type: ignore[no-untyped-def]
@@ -98,6 +118,14 @@ def run_blind(seed: int) -> Outcome:
         " ".join(_where(e)): float(e["visibility"]["after_rigid_fit_peak"]) / noise
         for e in catalogue
     }
+    showing = {
+        " ".join(_where(e)): sorted(
+            name
+            for name, peak in e["visibility"]["after_rigid_fit_per_line"].items()
+            if float(peak) / noise >= VISIBLE_FACTOR
+        )
+        for e in catalogue
+    }
     function_error, squareness_error, band_ratio = _accuracy(seed, truth, result)
     return Outcome(
         seed,
@@ -116,4 +144,7 @@ def run_blind(seed: int) -> Outcome:
         report["effects"],
         visibility,
         band_ratio,
+        showing,
+        _material_logged(truth),
+        [u["where"] for u in report["unexplained"]],
     )

@@ -1,0 +1,131 @@
+"""How a closed loop's answer is scored (tests/independent/loop_scenarios.py), on outcomes built by
+hand: no scenario is measured and no loop is run.
+
+The strict score asks for the exact effect set. Beside it, an effect only one line shows beyond
+what the 21 errors absorb (a local defect, a surface, a drift in time with no material
+temperature) cannot be attributed by any method on that plan, and the loop is also counted right
+when it reports that line unexplained; these tests pin which effects that excuse covers.
+"""
+
+import sys
+from collections.abc import Iterable
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "independent"))
+
+from loop_scenarios import VISIBLE_FACTOR, Outcome, on_line  # noqa: E402
+
+LOCAL = ("local", "Y in Z")
+REVERSAL = ("reversal", "X")
+DRIFT = ("thermal_drift", "X")
+
+
+def _outcome(
+    showing: dict[tuple[str, str], list[str]],
+    kept: Iterable[tuple[str, str]] = (),
+    unexplained_where: Iterable[str] = (),
+    material_logged: bool = False,
+) -> Outcome:
+    """An effects scenario carrying the effects of ``showing``, each visible on the lines listed
+    (absorbed by the 21 errors when none is)."""
+    labels = {f"{kind} {where}": lines for (kind, where), lines in showing.items()}
+    visibility = {label: 2 * VISIBLE_FACTOR if lines else 1.0 for label, lines in labels.items()}
+    where = list(unexplained_where)
+    return Outcome(
+        seed=0,
+        plan="demo",
+        category="effects",
+        noise=0.1,
+        expected=set(showing),
+        visible=all(v >= VISIBLE_FACTOR for v in visibility.values()),
+        kept=set(kept),
+        implausible=[],
+        unexplained=len(where),
+        function_error={},
+        squareness_error={},
+        seconds=0.0,
+        warnings=0,
+        visibility=visibility,
+        showing=labels,
+        material_logged=material_logged,
+        unexplained_where=where,
+    )
+
+
+def test_a_one_line_local_reported_unexplained_on_its_line_is_right() -> None:
+    outcome = _outcome({LOCAL: ["y_linear"]}, unexplained_where=["line y_linear at 120.3 mm"])
+    assert not outcome.attributable("local Y in Z")
+    assert outcome.one_line_visible == {LOCAL}
+    assert outcome.one_line_handling == {LOCAL: "unexplained"}
+    assert outcome.right_up_to_one_line_effects
+    # the strict score is unchanged: the effect was not kept
+    assert not outcome.exact
+
+
+def test_a_one_line_local_reported_from_run_to_run_on_its_line_is_right() -> None:
+    outcome = _outcome({LOCAL: ["y_lin_1"]}, unexplained_where=["line y_lin_1, from run to run"])
+    assert outcome.right_up_to_one_line_effects
+
+
+def test_a_one_line_local_reported_on_another_line_is_wrong() -> None:
+    outcome = _outcome({LOCAL: ["y_linear"]}, unexplained_where=["line x_linear at 80.0 mm"])
+    assert outcome.one_line_handling == {LOCAL: "neither"}
+    assert not outcome.right_up_to_one_line_effects
+
+
+def test_a_report_on_a_line_whose_name_extends_the_showing_one_is_another_line() -> None:
+    assert on_line("line x_lin_1 at 12.0 mm", "x_lin_1")
+    assert not on_line("line x_lin_10 at 12.0 mm", "x_lin_1")
+    outcome = _outcome({LOCAL: ["x_lin_1"]}, unexplained_where=["line x_lin_10, from run to run"])
+    assert not outcome.right_up_to_one_line_effects
+
+
+def test_a_one_line_local_kept_is_right() -> None:
+    outcome = _outcome({LOCAL: ["y_linear"]}, kept=[LOCAL])
+    assert outcome.one_line_handling == {LOCAL: "kept"}
+    assert outcome.right_up_to_one_line_effects
+    assert outcome.exact
+
+
+def test_a_local_two_lines_show_is_attributable_and_must_be_kept() -> None:
+    outcome = _outcome(
+        {LOCAL: ["y_linear", "y_straightness"]}, unexplained_where=["line y_linear at 120.3 mm"]
+    )
+    assert outcome.attributable("local Y in Z")
+    assert not outcome.one_line_visible
+    assert not outcome.right_up_to_one_line_effects
+
+
+def test_a_reversal_one_line_shows_is_attributable_and_must_be_kept() -> None:
+    missed = _outcome({REVERSAL: ["x_linear"]}, unexplained_where=["line x_linear at 10.0 mm"])
+    assert missed.attributable("reversal X")
+    assert not missed.one_line_visible
+    assert not missed.right_up_to_one_line_effects
+    assert _outcome({REVERSAL: ["x_linear"]}, kept=[REVERSAL]).right_up_to_one_line_effects
+
+
+def test_a_drift_one_line_shows_is_attributable_when_material_temperature_is_logged() -> None:
+    reported = ["line x_linear at 300.0 mm"]
+    logged = _outcome({DRIFT: ["x_linear"]}, unexplained_where=reported, material_logged=True)
+    assert logged.attributable("thermal_drift X")
+    assert not logged.right_up_to_one_line_effects
+    # driven by time alone, one line cannot tell it from a beam that drifts
+    in_time = _outcome({DRIFT: ["x_linear"]}, unexplained_where=reported)
+    assert not in_time.attributable("thermal_drift X")
+    assert in_time.right_up_to_one_line_effects
+
+
+def test_a_kept_effect_that_was_not_injected_spoils_it() -> None:
+    outcome = _outcome(
+        {LOCAL: ["y_linear"]},
+        kept=[("cyclic", "X")],
+        unexplained_where=["line y_linear at 120.3 mm"],
+    )
+    assert not outcome.right_up_to_one_line_effects
+
+
+def test_an_effect_the_21_errors_absorb_may_be_missed() -> None:
+    outcome = _outcome({LOCAL: [], REVERSAL: ["x_linear"]}, kept=[REVERSAL])
+    assert not outcome.visible
+    assert not outcome.one_line_visible
+    assert outcome.right_up_to_one_line_effects
