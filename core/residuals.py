@@ -230,10 +230,12 @@ class LoopResult:
 
     def _cv_report(self) -> dict[str, object]:
         """Cross-validated RMS (µm, displacement lines) before and after the loop, over the
-        readings the loop compares: held out in blocks, those the base model predicts (wild
+        readings the loop compares: those both the base and the final model predict (wild
         extrapolations are counted, not averaged in)."""
-        before, after, wild = _compared(self.cv_before, self.cv_after, self.base, um=True)
-        judged = _compared(self.cv_before, self.cv_after, self.base)
+        before, after, wild = _compared(
+            self.cv_before, self.cv_after, self.base, um=True, other_fit=self.final
+        )
+        judged = _compared(self.cv_before, self.cv_after, self.base, other_fit=self.final)
         out: dict[str, object] = {
             "before_loop": before,
             "after_loop": after,
@@ -243,6 +245,8 @@ class LoopResult:
         }
         if self.cv_after.method.startswith("held-out blocks"):
             out["blocks_left_out"] = wild
+        else:
+            out["lines_left_out"] = wild
         return out
 
     def to_report(self) -> dict[str, object]:
@@ -1246,16 +1250,11 @@ def _rms(residual: FloatArray, readings: Readings, rows: NDArray[np.bool_]) -> f
     return float(np.sqrt(np.mean(scaled**2))) if scaled.size else float("nan")
 
 
-def _metric(cv: CrossValidation, readings: Readings) -> float:
-    """The loop's cross-validated error: RMS over every reading held out, in displacement units
-    (µm, or µrad for a plan of angular lines only)."""
-    return _rms(cv.residual, readings, np.isfinite(cv.residual))
-
-
-def _fit_metric(identification: Identification) -> float:
-    """:func:`_metric` of the fit's own residual."""
+def _fit_metric(identification: Identification, rows: NDArray[np.bool_]) -> float:
+    """RMS of the fit's own residual over ``rows``, in displacement units (µm, or µrad for a
+    plan of angular lines only)."""
     residual = identification.residual
-    return _rms(residual, identification.readings, np.isfinite(residual))
+    return _rms(residual, identification.readings, rows & np.isfinite(residual))
 
 
 #: A held-out block whose cross-validated mean square exceeds this many times what the fit leaves
@@ -1267,23 +1266,25 @@ WILD_BLOCK_FACTOR = 25.0
 
 def _predicted(reference: CrossValidation, fit: Identification) -> tuple[NDArray[np.bool_], int]:
     """Per reading, whether its cross-validated residual is a prediction, and how many held-out
-    blocks are not. Leaving one line out predicts every reading. Held out in blocks, a line's
-    end targets never are, and a block whose cross-validated mean square exceeds
-    :data:`WILD_BLOCK_FACTOR` times what the fit ``fit`` leaves there in-sample (or the median
-    block's of its quantity, if more) is a wild extrapolation (judged on ``fit`` and its
-    cross-validation ``reference``)."""
+    blocks (or lines) are not. Held out in blocks, a line's end targets never are. A held-out
+    block or line whose cross-validated mean square exceeds :data:`WILD_BLOCK_FACTOR` times what
+    the fit ``fit`` leaves there in-sample (or the median block's or line's of its quantity, if
+    more) is a wild extrapolation (judged on ``fit`` and its cross-validation ``reference``).
+    For a linear fit the held-out residual of a line is (I − H)⁻¹ times its in-sample residual,
+    H the line's leverage: a ratio of 25 in mean square is a leverage of 0.8 or more, a line
+    the rest of the plan barely determines (an angular line that alone reads its error, or the
+    session's first line once a drift in time is in the model: the later lines cannot tell the
+    drift from the positioning error without it)."""
     out = np.isfinite(reference.residual)
-    if not reference.method.startswith("held-out blocks"):
-        return out, 0
     readings = fit.readings
+    blocks = reference.method.startswith("held-out blocks")
     wild = 0
     angular = readings.is_angular
     for quantity in (~angular, angular):
         rows = np.flatnonzero(quantity & out)
         if rows.size == 0:
             continue
-        block = readings.line[rows] * 1_000_000 + np.floor(readings.target_mm[rows] / BLOCK_MM)
-        _, group = np.unique(block, return_inverse=True)
+        _, group = np.unique(_held_out_group(readings, rows, blocks), return_inverse=True)
         count = np.bincount(group).astype(float)
         held = np.bincount(group, reference.residual[rows] ** 2) / count
         in_sample = np.bincount(group, fit.residual[rows] ** 2) / count
@@ -1294,17 +1295,50 @@ def _predicted(reference: CrossValidation, fit: Identification) -> tuple[NDArray
 
 
 def _compared(
-    reference: CrossValidation, other: CrossValidation, fit: Identification, um: bool = False
+    reference: CrossValidation,
+    other: CrossValidation,
+    fit: Identification,
+    um: bool = False,
+    other_fit: Identification | None = None,
 ) -> tuple[float, float, int]:
-    """The cross-validated error of two fits over the same predicted readings (:func:`_predicted`,
-    judged on the reference fit ``fit`` only: a block a candidate makes wild still counts
-    against it), and how many held-out blocks were left out as wild. With ``um``, over the
-    displacement readings alone (µm, as report.json states it)."""
+    """The cross-validated error of two fits over the same predicted readings (:func:`_predicted`),
+    and how many held-out blocks or lines were left out as wild. Each block or line is judged on
+    both fits (``fit`` that of ``reference``, ``other_fit`` that of ``other``): one that either
+    model needs to fix its own parameters, so that held out it is barely determined, is no
+    prediction of either (a bump whose only sight on a line is the block held out, the session's
+    first line once a drift in time is in the model). With ``um``, over the displacement readings
+    alone (µm, as report.json states it)."""
     readings = fit.readings
-    rows, wild = _predicted(reference, fit)
+    rows, wild = _rows_compared(reference, other, fit, other_fit)
     if um:
         rows &= ~readings.is_angular
     return _rms(reference.residual, readings, rows), _rms(other.residual, readings, rows), wild
+
+
+def _rows_compared(
+    reference: CrossValidation,
+    other: CrossValidation,
+    fit: Identification,
+    other_fit: Identification | None,
+) -> tuple[NDArray[np.bool_], int]:
+    """The readings :func:`_compared` compares two fits over, and how many held-out blocks or
+    lines it leaves out."""
+    rows, wild = _predicted(reference, fit)
+    if other_fit is not None:
+        theirs, _ = _predicted(other, other_fit)
+        blocks = reference.method.startswith("held-out blocks")
+        wild += int(np.unique(_held_out_group(fit.readings, rows & ~theirs, blocks)).size)
+        rows &= theirs
+    return rows, wild
+
+
+def _held_out_group(readings: Readings, rows: NDArray[np.generic], blocks: bool) -> IntArray:
+    """For the readings ``rows`` (a mask or indices), a key of what cross-validation held out
+    together: the line, and with held-out blocks the block of targets."""
+    key = readings.line[rows].astype(np.int64) * 1_000_000
+    if blocks:
+        key = key + np.floor(readings.target_mm[rows] / BLOCK_MM).astype(np.int64)
+    return key
 
 
 @dataclass(frozen=True, eq=False)
@@ -1316,10 +1350,9 @@ class _Trial:
     reason: str
     parameters: dict[str, object]
     uncorroborated: bool = False  # refused only because one line alone shows it
-
-    @property
-    def score(self) -> float:
-        return _metric(self.cv, self.refit.readings)
+    #: its cross-validated error over the readings the comparison with the current model runs
+    #: on (:func:`_compared`): the same for every candidate of a step, wild blocks left out
+    score: float = float("nan")
 
 
 class _Fitter:
@@ -1374,14 +1407,17 @@ def _judge(
     parameters = effect.parameters(values, covariance)
     contribution = effect.design(refit.readings, refit.model) @ values
     energy = _Tester(current).line_energy(contribution)
-    before, after, wild = _compared(cv, cv_new, current)
+    before, after, wild = _compared(cv, cv_new, current, other_fit=refit)
     improvement = 1.0 - after / before if before > 0 else 0.0
     reason = f"cross-validated RMS {before:.4g} → {after:.4g} ({100 * improvement:.1f} % better)"
     if wild:
-        reason += f" (over the held-out blocks less {wild} wild extrapolations)"
+        held = "blocks" if cv.method.startswith("held-out blocks") else "lines"
+        reason += f" (over the held-out {held} less {wild} wild extrapolations)"
 
     def refused(why: str, uncorroborated: bool = False) -> _Trial:
-        return _Trial(finding, refit, cv_new, False, f"{reason}; {why}", parameters, uncorroborated)
+        return _Trial(
+            finding, refit, cv_new, False, f"{reason}; {why}", parameters, uncorroborated, after
+        )
 
     why = effect.implausible(values, covariance, options.plausibility)
     if why is not None:
@@ -1391,7 +1427,10 @@ def _judge(
         return refused(lonely, uncorroborated=True)
     if improvement < options.margin:
         return refused(f"below the {100 * options.margin:.0f} % margin: refused")
-    fit_gain = _fit_metric(current) ** 2 - _fit_metric(refit) ** 2
+    # over the readings the held-out comparison runs on: a line left out of it as no
+    # prediction confirms nothing and is not asked to
+    rows, _ = _rows_compared(cv, cv_new, current, refit)
+    fit_gain = _fit_metric(current, rows) ** 2 - _fit_metric(refit, rows) ** 2
     held_out_gain = before**2 - after**2
     confirmed = held_out_gain / fit_gain if fit_gain > 0 else 1.0
     if confirmed < options.generalisation:
@@ -1405,7 +1444,7 @@ def _judge(
     )
     if unrepeatable is not None:
         return refused(unrepeatable)
-    return _Trial(finding, refit, cv_new, True, reason, parameters)
+    return _Trial(finding, refit, cv_new, True, reason, parameters, score=after)
 
 
 #: A line shows an effect when what the 21 errors cannot absorb of it there reaches 4 σ.
@@ -1673,7 +1712,7 @@ def _alike(
     if not isinstance(effect, CrossAxis):
         return None
     where = (effect.direction, {effect.along, effect.across})
-    _, score, _ = _compared(cv, chosen.cv, current)
+    _, score, _ = _compared(cv, chosen.cv, current, other_fit=chosen.refit)
     for trial in trials:
         rival = trial.finding.effect
         if trial is chosen or not isinstance(rival, CrossAxis):
@@ -1682,7 +1721,7 @@ def _alike(
             continue
         if not (trial.ok or trial.uncorroborated):
             continue
-        _, other = _compared(cv, trial.cv, current)[:2]
+        _, other = _compared(cv, trial.cv, current, other_fit=trial.refit)[:2]
         if other <= score * (1.0 + tie):
             return (
                 f"{effect.label} was kept, but {rival.label} predicts the held-out data as well "
@@ -1695,14 +1734,19 @@ def _alike(
 
 
 def _simplest_best(passing: list[_Trial], tie: float) -> _Trial | None:
-    """The candidate with the lowest cross-validated error; among those within ``tie`` of it,
-    the one with the fewest parameters (fitted and searched): a drift driven by the logged
-    temperature before one whose time constant had to be estimated, when both explain alike."""
+    """The candidate with the lowest cross-validated error; among those within ``tie`` of it, a
+    physical effect before a finer function (short structure is the loop's to name, DESIGN.md:
+    a bump a finer spline follows as well is still a bump), then the one with the fewest
+    parameters (fitted and searched): a drift driven by the logged temperature before one whose
+    time constant had to be estimated, when both explain alike."""
     if not passing:
         return None
     best = min(t.score for t in passing)
     close = [t for t in passing if t.score <= best * (1.0 + tie)]
-    return min(close, key=lambda t: (_complexity(t), t.score))
+    return min(
+        close,
+        key=lambda t: (t.finding.effect.kind == "higher_order", _complexity(t), t.score),
+    )
 
 
 def _complexity(trial: _Trial) -> int:
@@ -1755,7 +1799,7 @@ def _refine(
             continue
         trial_kept = [better if e is effect else e for e in kept]
         refit, cv_new = fit(trial_kept, current.model)
-        before, after, _ = _compared(cv, cv_new, current)
+        before, after, _ = _compared(cv, cv_new, current, other_fit=refit)
         if not after < before:
             continue
         reason = (
@@ -1843,7 +1887,7 @@ def _backward(
                 continue
             rest = [e for e in kept if e is not effect]
             refit, cv_new = (base, cv_base) if not rest else fit(rest, current.model)
-            with_it, without, _ = _compared(cv, cv_new, current)
+            with_it, without, _ = _compared(cv, cv_new, current, other_fit=refit)
             costs.append((without / with_it - 1.0, effect, refit, cv_new, with_it, without))
         if not costs:
             break
@@ -1968,7 +2012,7 @@ def _step(
         reason,
         residual_rms(current)[0],
         residual_rms(trial.refit)[0],
-        *_compared(cv, trial.cv, current, um=True)[:2],
+        *_compared(cv, trial.cv, current, um=True, other_fit=trial.refit)[:2],
         trial.parameters,
         group_rms(current),
         group_rms(trial.refit),

@@ -277,7 +277,8 @@ class Outcome:
     #: per injected catalogue effect ("kind where"): what it leaves in the 21-error residual,
     #: in units of the noise
     visibility: dict[str, float] = field(default_factory=dict)
-    #: largest RMS ratio of a function's error to its stated standard uncertainty
+    #: largest RMS ratio of a function's (or a squareness's) error to its stated standard
+    #: uncertainty
     band_ratio: float = 0.0
     #: per injected catalogue effect ("kind where"): the lines on which what the 21-error fit
     #: leaves of it reaches 4× the noise
@@ -558,8 +559,8 @@ def _single_axis_model(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, np.
 def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, float], float]:  # type: ignore[no-untyped-def]
     """Per identified error function: RMS difference from the truth with the gauges removed
     (µm or µrad; cycles and local defects folded into the function they change, in both); per
-    squareness: the difference (µrad); and the largest RMS ratio of a function's difference to
-    its stated standard uncertainty (how honest the bands are)."""
+    squareness: the difference (µrad); and the largest RMS ratio of a function's (or a
+    squareness's) difference to its stated standard uncertainty (how honest the bands are)."""
     identified = set(result.base.identifiability.identified_ids)
     functions = {}
     worst_ratio = 0.0
@@ -582,7 +583,20 @@ def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, f
         for sid, value in scenario.machine.squareness.items()
         if sid in identified
     }
-    return functions, squareness, worst_ratio
+    return functions, squareness, max(worst_ratio, squareness_ratio(result, squareness))
+
+
+def squareness_ratio(result, errors: dict[str, float]) -> float:  # type: ignore[no-untyped-def]
+    """The largest ratio of a squareness error (µrad) to its stated standard uncertainty (the
+    statistical part, from the final fit's covariance)."""
+    model = result.final.model
+    worst = 0.0
+    for sid, error in errors.items():
+        sl = model.parameter_slices[sid]
+        std = float(np.sqrt(max(result.final.covariance[sl, sl][0, 0], 0.0)))
+        if std > 0:
+            worst = max(worst, error / std)
+    return worst
 
 
 def summarise(outcomes: list[Outcome]) -> dict[str, object]:

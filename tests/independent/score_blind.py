@@ -17,7 +17,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-from loop_scenarios import MATERIAL_CHANGE_C, VISIBLE_FACTOR, Outcome, _gauged, kept_effects
+from loop_scenarios import (
+    MATERIAL_CHANGE_C,
+    VISIBLE_FACTOR,
+    Outcome,
+    _gauged,
+    kept_effects,
+    squareness_ratio,
+)
 
 from tests.blind.scenarios import build_scenario, write_scenario
 
@@ -96,7 +103,7 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
         for sid, value in truth["machine"]["squareness_urad"].items()
         if sid in identified
     }
-    return functions, squareness, worst_ratio
+    return functions, squareness, max(worst_ratio, squareness_ratio(result, squareness))
 
 
 def run_blind(seed: int) -> Outcome:
