@@ -5,6 +5,8 @@ The strict score asks for the exact effect set. Beside it, an effect only one li
 what the 21 errors absorb (a local defect, a surface, a drift in time with no material
 temperature) cannot be attributed by any method on that plan, and the loop is also counted right
 when it reports that line unexplained; these tests pin which effects that excuse covers.
+Squareness is scored as the angle between two axes, whatever share of it a model and a generator
+put in the straightness slopes.
 """
 
 import sys
@@ -13,7 +15,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "independent"))
 
-from loop_scenarios import VISIBLE_FACTOR, Outcome, on_line  # noqa: E402
+import pytest  # noqa: E402
+from loop_scenarios import VISIBLE_FACTOR, Outcome, on_line, squareness_errors  # noqa: E402
 
 LOCAL = ("local", "Y in Z")
 REVERSAL = ("reversal", "X")
@@ -129,3 +132,44 @@ def test_an_effect_the_21_errors_absorb_may_be_missed() -> None:
     assert not outcome.visible
     assert not outcome.one_line_visible
     assert outcome.right_up_to_one_line_effects
+
+
+SQUARE = {"EC0Y": 12.0, "EB0Z": -7.0, "EA0Z": 3.0}
+ALL = set(SQUARE) | {"EXY", "EYX", "EXZ", "EZX", "EYZ", "EZY"}
+
+
+def test_a_rotation_of_the_whole_frame_is_no_squareness_error() -> None:
+    # a rotation φ about Z tilts X towards +Y (EYX slope +φ) and Y towards −X (EXY slope −φ);
+    # about Y, X towards −Z and Z towards +X; about X, Y towards +Z and Z towards −Y
+    phi = 0.004  # µm/mm
+    slopes = {
+        "EYX": (0.0, phi),
+        "EXY": (0.0, -phi),
+        "EZX": (0.0, -phi),
+        "EXZ": (0.0, phi),
+        "EZY": (0.0, phi),
+        "EYZ": (0.0, -phi),
+    }
+    errors = squareness_errors(SQUARE, SQUARE, slopes, ALL)
+    assert errors == pytest.approx(dict.fromkeys(SQUARE, 0.0), abs=1e-9)
+
+
+def test_a_slope_folded_into_a_straightness_is_part_of_its_squareness() -> None:
+    # the model's bump off the middle of Y's stroke tilts its EXY by 0.01 µm/mm: the Y travel's
+    # X deviation is (slope − EC0Y)·y, so the same angle between the axes has an EC0Y 10 µrad
+    # larger; the Z travel's X deviation is (slope + EB0Z)·z
+    bump = 0.01
+    model = dict(SQUARE, EC0Y=SQUARE["EC0Y"] + 1000 * bump, EB0Z=SQUARE["EB0Z"] - 1000 * bump)
+    slopes = {"EXY": (0.0, bump), "EYX": (0.0, 0.0), "EXZ": (0.0, bump), "EZX": (0.0, 0.0)}
+    errors = squareness_errors(SQUARE, model, slopes, ALL)
+    assert errors["EC0Y"] == pytest.approx(0.0, abs=1e-9)
+    assert errors["EB0Z"] == pytest.approx(0.0, abs=1e-9)
+    # the wrong sign is an error of twice the angle
+    wrong = dict(SQUARE, EC0Y=SQUARE["EC0Y"] - 1000 * bump)
+    assert squareness_errors(SQUARE, wrong, slopes, ALL)["EC0Y"] == pytest.approx(20.0)
+
+
+def test_a_squareness_whose_straightness_the_plan_does_not_see_is_compared_as_it_is() -> None:
+    slopes = {"EYZ": (0.0, 0.01)}  # EZY not identified: no angle between the axes to form
+    model = dict(SQUARE, EA0Z=SQUARE["EA0Z"] + 1.5)
+    assert squareness_errors(SQUARE, model, slopes, ALL)["EA0Z"] == pytest.approx(1.5)

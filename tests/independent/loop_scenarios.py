@@ -563,6 +563,7 @@ def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, f
     squareness's) difference to its stated standard uncertainty (how honest the bands are)."""
     identified = set(result.base.identifiability.identified_ids)
     functions = {}
+    slopes: dict[str, tuple[float, float]] = {}
     worst_ratio = 0.0
     for eid in scenario.machine.functions:
         if eid not in identified:
@@ -570,20 +571,62 @@ def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, f
         low, high = scenario.machine.stroke[eid[2]]
         q = np.linspace(low, high, 161)
         straightness = eid[1] in AXES and eid[1] != eid[2]
-        truth = _gauged(_single_axis_truth(scenario, eid, q), q, straightness)
+        truth_total = _single_axis_truth(scenario, eid, q)
         model, std = _single_axis_model(result, eid, q)
-        difference = _gauged(model, q, straightness) - truth
+        if straightness:
+            slopes[eid] = (_slope(truth_total, q), _slope(model, q))
+        difference = _gauged(model, q, straightness) - _gauged(truth_total, q, straightness)
         functions[eid] = float(np.sqrt(np.mean(difference**2)))
         spread = float(np.sqrt(np.mean(std**2)))
         if spread > 0:
             worst_ratio = max(worst_ratio, functions[eid] / spread)
-    model = result.final.model
-    squareness = {
-        sid: abs(model.squareness_urad[sid] - value)
-        for sid, value in scenario.machine.squareness.items()
-        if sid in identified
-    }
+    squareness = squareness_errors(
+        scenario.machine.squareness, result.final.model.squareness_urad, slopes, identified
+    )
     return functions, squareness, max(worst_ratio, squareness_ratio(result, squareness))
+
+
+def _slope(values: np.ndarray, q: np.ndarray) -> float:
+    """Least-squares slope (µm/mm) of a function over its stroke."""
+    return float(np.polyfit(q, values, 1)[0])
+
+
+#: Per squareness: the two straightness functions of its pair of axes and the sign with which
+#: their slopes add to it (first-order chain, DESIGN.md: the Y travel gains −y·EC0Y in X, the Z
+#: travel +z·EB0Z in X and −z·EA0Z in Y). A rotation of the whole frame tilts one axis of the
+#: pair towards the other by what it tilts the other away: it changes neither the sum of the
+#: two tilts nor the squareness, which is that sum.
+SQUARENESS_PAIRS = {
+    "EC0Y": (("EXY", "EYX"), -1.0),
+    "EB0Z": (("EXZ", "EZX"), 1.0),
+    "EA0Z": (("EYZ", "EZY"), -1.0),
+}
+
+
+def squareness_errors(
+    truth: dict[str, float],
+    model: dict[str, float],
+    slopes: dict[str, tuple[float, float]],
+    identified: set[str],
+) -> dict[str, float]:
+    """|model − truth| per identified squareness (µrad), each taken as the angle between its two
+    axes: the squareness plus the slopes of the two straightness functions of the pair with
+    everything folded into them (``slopes``: (truth, model) in µm/mm). The gauge gives a
+    function zero slope, but what is folded into it (a bump off the middle of the stroke, a
+    surface's slice) is not gauged, and its slope is the squareness' in ISO 230-1's reference
+    straight lines: volucal and a generator may split one angle between the two differently."""
+    out = {}
+    for sid, value in truth.items():
+        if sid not in identified:
+            continue
+        (first, second), sign = SQUARENESS_PAIRS[sid]
+        if first in slopes and second in slopes:
+            tilt_truth = slopes[first][0] + slopes[second][0]
+            tilt_model = slopes[first][1] + slopes[second][1]
+            out[sid] = abs(model[sid] - value + sign * 1000.0 * (tilt_model - tilt_truth))
+        else:
+            out[sid] = abs(model[sid] - value)
+    return out
 
 
 def squareness_ratio(result, errors: dict[str, float]) -> float:  # type: ignore[no-untyped-def]

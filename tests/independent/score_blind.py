@@ -22,7 +22,9 @@ from loop_scenarios import (
     VISIBLE_FACTOR,
     Outcome,
     _gauged,
+    _slope,
     kept_effects,
+    squareness_errors,
     squareness_ratio,
 )
 
@@ -78,6 +80,7 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
     stroke = {axis: machine.stroke(axis) for axis in "XYZ"}
     identified = set(result.base.identifiability.identified_ids)
     functions = {}
+    slopes: dict[str, tuple[float, float]] = {}
     worst_ratio = 0.0
     for eid, table in truth["machine"]["functions"].items():
         if eid not in identified:
@@ -92,17 +95,19 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
             a, b = (states[:, "XYZ".index(axis)] for axis in effect.depends_on)
             value = value + effect.value(a, b)
         model, std = _single_axis_model(result, eid, q)
+        if straightness:
+            slopes[eid] = (_slope(value, q), _slope(model, q))
         difference = _gauged(model, q, straightness) - _gauged(value, q, straightness)
         functions[eid] = float(np.sqrt(np.mean(difference**2)))
         spread = float(np.sqrt(np.mean(std**2)))
         if spread > 0:
             worst_ratio = max(worst_ratio, functions[eid] / spread)
-    model = result.final.model
-    squareness = {
-        sid: abs(model.squareness_urad[sid] - value)
-        for sid, value in truth["machine"]["squareness_urad"].items()
-        if sid in identified
-    }
+    squareness = squareness_errors(
+        truth["machine"]["squareness_urad"],
+        result.final.model.squareness_urad,
+        slopes,
+        identified,
+    )
     return functions, squareness, max(worst_ratio, squareness_ratio(result, squareness))
 
 
