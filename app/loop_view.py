@@ -338,7 +338,7 @@ class LoopView(View):
                 _num(ev.get("F")), _num(ev.get("log10_false_alarm")), um(ev.get("magnitude_um")),
                 f"{um(rms.get('before'))} → {um(rms.get('after'))}",
                 f"{um(cv.get('before'))} → {um(cv.get('after'))}",
-                "kept" if step.get("kept") else "rejected",
+                "kept" if step.get("kept") else _rejected(step.get("verdict")),
             ]
             for column, text in enumerate(cells):
                 item = QTableWidgetItem(text)
@@ -465,6 +465,12 @@ class LoopView(View):
             f"{_num(ev.get('F'))}, log₁₀ false alarm {_num(ev.get('log10_false_alarm'))}, "
             f"magnitude {_num(ev.get('magnitude_um'))} µm, where: {ev.get('where', '—')}. "
             f"{step.get('reason', '')}")
+
+
+def _rejected(verdict: Any) -> str:
+    """A step not kept, with the rule that decided it (projects saved before steps recorded
+    their verdict say only "rejected")."""
+    return f"rejected: {verdict}" if verdict else "rejected"
 
 
 def _num(value: Any) -> str:

@@ -361,11 +361,12 @@ def summary_table(result: Mapping[str, Any]) -> str:
     for step in result["loop"]:
         effect = step["effect"]
         label = effect.get("label", effect["kind"])[:42]
+        kept = "yes" if step["kept"] else f"no: {step['verdict']}"  # why not, in a few words
         lines.append(
             f"{step['step']:>2} {label:<42} "
             f"{step['rms_um']['before']:6.3f} {step['rms_um']['after']:6.3f}"
             f"   {step['cv_rms_um']['before']:6.3f} {step['cv_rms_um']['after']:6.3f}"
-            f"   {'yes' if step['kept'] else 'no'}"
+            f"   {kept}"
         )
     rms = result["residual_rms_um"]
     cv = result["cv_rms_um"]

@@ -172,6 +172,8 @@ class Step:
     per_group_before: dict[str, float]
     per_group_after: dict[str, float]
     stage: str = "forward"
+    #: the decision in a few words (:data:`VERDICTS`); ``reason`` gives it in full
+    verdict: str = "kept"
 
 
 @dataclass(frozen=True)
@@ -267,6 +269,7 @@ class LoopResult:
                         "evidence": s.finding.evidence(),
                     },
                     "kept": s.kept,
+                    "verdict": s.verdict,
                     "reason": s.reason,
                     "rms_um": {"before": s.rms_before, "after": s.rms_after},
                     "cv_rms_um": {"before": s.cv_before, "after": s.cv_after},
@@ -1353,6 +1356,8 @@ class _Trial:
     #: its cross-validated error over the readings the comparison with the current model runs
     #: on (:func:`_compared`): the same for every candidate of a step, wild blocks left out
     score: float = float("nan")
+    #: the rule that refused it (:data:`VERDICTS`), "kept" when it passed them all
+    verdict: str = "kept"
 
 
 class _Fitter:
@@ -1414,19 +1419,27 @@ def _judge(
         held = "blocks" if cv.method.startswith("held-out blocks") else "lines"
         reason += f" (over the held-out {held} less {wild} wild extrapolations)"
 
-    def refused(why: str, uncorroborated: bool = False) -> _Trial:
+    def refused(why: str, verdict: str, uncorroborated: bool = False) -> _Trial:
         return _Trial(
-            finding, refit, cv_new, False, f"{reason}; {why}", parameters, uncorroborated, after
+            finding,
+            refit,
+            cv_new,
+            False,
+            f"{reason}; {why}",
+            parameters,
+            uncorroborated,
+            after,
+            verdict,
         )
 
     why = effect.implausible(values, covariance, options.plausibility)
     if why is not None:
-        return refused(f"implausible: {why}")
+        return refused(f"implausible: {why}", "implausible")
     lonely = _uncorroborated(effect, energy, refit.readings)
     if lonely is not None:
-        return refused(lonely, uncorroborated=True)
+        return refused(lonely, "one line only", uncorroborated=True)
     if improvement < options.margin:
-        return refused(f"below the {100 * options.margin:.0f} % margin: refused")
+        return refused(f"below the {100 * options.margin:.0f} % margin: refused", "below margin")
     # over the readings the held-out comparison runs on: a line left out of it as no
     # prediction confirms nothing and is not asked to
     rows, _ = _rows_compared(cv, cv_new, current, refit)
@@ -1437,16 +1450,32 @@ def _judge(
         return refused(
             f"the held-out data confirm only {100 * confirmed:.0f} % of what it removes from "
             f"the fitted residual (at least {100 * options.generalisation:.0f} % needed): it does "
-            "not describe the structure it fits; refused"
+            "not describe the structure it fits; refused",
+            "not confirmed",
         )
     unrepeatable = _unrepeatable(
         _sizes(refit, contribution), options, exact_shape=effect.line_index is not None
     )
     if unrepeatable is not None:
-        return refused(unrepeatable)
+        return refused(unrepeatable, "not repeatable")
     return _Trial(finding, refit, cv_new, True, reason, parameters, score=after)
 
 
+#: A step's decision in a few words (report.json ``loop[].verdict``): kept; passed every rule but
+#: another candidate of the step was kept; refused by rule (a) plausibility, (b) one line only,
+#: (c) the margin, (d) generalisation or (e) repeatability; a kept effect's searched quantity
+#: estimated again; a kept effect taken out by the backward pass or the final audit.
+VERDICTS = (
+    "kept",
+    "another kept",
+    "implausible",
+    "one line only",
+    "below margin",
+    "not confirmed",
+    "not repeatable",
+    "estimated again",
+    "taken out",
+)
 #: A line shows an effect when what the 21 errors cannot absorb of it there reaches 4 σ.
 SHOWN_SIGMA2 = 16.0
 #: Machine effects that one line alone cannot tell from an artefact of that line's set-up.
@@ -1661,10 +1690,13 @@ def close_loop(
             for trial in trials:
                 if not trial.ok:
                     refused[trial.finding.effect.key] = trial.finding.f_statistic
-                reason = trial.reason
+                reason, verdict = trial.reason, trial.verdict
                 if trial.ok and trial is not chosen:
                     reason += f"; {chosen.finding.effect.label if chosen else ''} was kept instead"
-                steps.append(_step(number, trial, trial is chosen, reason, current, cv))
+                    verdict = "another kept"
+                steps.append(
+                    _step(number, trial, trial is chosen, reason, current, cv, verdict=verdict)
+                )
         if chosen is None:
             break
         alike = _alike(chosen, tried_this_step, current, cv, options.tie)
@@ -1984,7 +2016,8 @@ def _later_step(
     where = {"refine": "estimated again", "backward": "backward pass", "audit": "final audit"}
     finding = Finding(effect, float("nan"), 0.0, 0, 0.0, 0.0, where[stage])
     trial = _Trial(finding, *trial_fit, kept, reason, parameters)
-    return _step(number, trial, kept, reason, *before, stage=stage)
+    verdict = {"refine": "estimated again", "backward": "taken out", "audit": "taken out"}
+    return _step(number, trial, kept, reason, *before, stage=stage, verdict=verdict[stage])
 
 
 def _wald(identification: Identification, index: int) -> float:
@@ -2004,6 +2037,7 @@ def _step(
     current: Identification,
     cv: CrossValidation,
     stage: str = "forward",
+    verdict: str = "kept",
 ) -> Step:
     return Step(
         number,
@@ -2017,6 +2051,7 @@ def _step(
         group_rms(current),
         group_rms(trial.refit),
         stage,
+        verdict,
     )
 
 

@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 from volucal.core import plans
 from volucal.core import simulate as sim
+from volucal.core.calibrate import summary_table
 from volucal.core.errors import BSplineBasis, ErrorFunction, ErrorModel, gauge_null_space
 from volucal.core.measurement import Line, LineData, Measurement
-from volucal.core.residuals import close_loop
+from volucal.core.residuals import VERDICTS, close_loop
 
 NOISE = 0.1
 STEP_MM = 12.0  # irregular targets about every 12 mm (ISO 230-2 style), 5 bidirectional runs
@@ -227,6 +228,27 @@ def test_an_effect_outside_the_catalogue_is_reported_unexplained_and_not_fitted(
     position = float(hits[0]["where"].split(" at ")[1].split()[0])
     assert position == pytest.approx(200.0, abs=15.0)
     assert hits[0]["magnitude_um"] == pytest.approx(1.0, rel=0.3)
+    # each step says, in the report and on the console, which rule decided it
+    steps = report["loop"]
+    for step in steps:
+        kept_verdicts = {"kept", "estimated again"}
+        assert step["verdict"] in VERDICTS
+        assert step["kept"] == (step["verdict"] in kept_verdicts), step
+    # the surface kept on the bump was taken out by the final audit (one size on every line)
+    assert any(s["stage"] == "audit" and s["verdict"] == "taken out" for s in steps)
+    refused = [s for s in steps if not s["kept"]]
+    table = summary_table(
+        {
+            **report,
+            "lines": 0,
+            "readings": 0,
+            "identifiability": {"rank": 0, "unknowns": 0, "unidentifiable": []},
+        }
+    )
+    rows = [r for r in table.splitlines() if r.endswith(tuple(f"no: {v}" for v in VERDICTS))]
+    assert len(rows) == len(refused)
+    for row, step in zip(rows, refused, strict=True):
+        assert step["effect"]["label"][:42] in row and row.endswith(f"no: {step['verdict']}")
 
 
 def test_aliasing_warning_for_targets_in_step_with_the_screw_lead() -> None:
