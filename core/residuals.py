@@ -1412,7 +1412,10 @@ def _judge(
     parameters = effect.parameters(values, covariance)
     contribution = effect.design(refit.readings, refit.model) @ values
     energy = _Tester(current).line_energy(contribution)
-    before, after, wild = _compared(cv, cv_new, current, other_fit=refit)
+    # the readings both models predict (:func:`_compared`), for the margin and generalisation
+    rows, wild = _rows_compared(cv, cv_new, current, refit)
+    before = _rms(cv.residual, current.readings, rows)
+    after = _rms(cv_new.residual, current.readings, rows)
     improvement = 1.0 - after / before if before > 0 else 0.0
     reason = f"cross-validated RMS {before:.4g} → {after:.4g} ({100 * improvement:.1f} % better)"
     if wild:
@@ -1440,9 +1443,7 @@ def _judge(
         return refused(lonely, "one line only", uncorroborated=True)
     if improvement < options.margin:
         return refused(f"below the {100 * options.margin:.0f} % margin: refused", "below margin")
-    # over the readings the held-out comparison runs on: a line left out of it as no
-    # prediction confirms nothing and is not asked to
-    rows, _ = _rows_compared(cv, cv_new, current, refit)
+    # over the same readings: a line left out as no prediction confirms nothing, nor is asked to
     fit_gain = _fit_metric(current, rows) ** 2 - _fit_metric(refit, rows) ** 2
     held_out_gain = before**2 - after**2
     confirmed = held_out_gain / fit_gain if fit_gain > 0 else 1.0
@@ -2013,11 +2014,14 @@ def _later_step(
     parameters = effect.parameters(
         fitted.effect_parameters[index], fitted.effect_covariances[index]
     )
-    where = {"refine": "estimated again", "backward": "backward pass", "audit": "final audit"}
-    finding = Finding(effect, float("nan"), 0.0, 0, 0.0, 0.0, where[stage])
+    where, verdict = {
+        "refine": ("estimated again", "estimated again"),
+        "backward": ("backward pass", "taken out"),
+        "audit": ("final audit", "taken out"),
+    }[stage]
+    finding = Finding(effect, float("nan"), 0.0, 0, 0.0, 0.0, where)
     trial = _Trial(finding, *trial_fit, kept, reason, parameters)
-    verdict = {"refine": "estimated again", "backward": "taken out", "audit": "taken out"}
-    return _step(number, trial, kept, reason, *before, stage=stage, verdict=verdict[stage])
+    return _step(number, trial, kept, reason, *before, stage=stage, verdict=verdict)
 
 
 def _wald(identification: Identification, index: int) -> float:
