@@ -1606,6 +1606,18 @@ def _log10_chi2_tail(dof: int, chi2: float) -> float:
         return float(np.log10(max(special.chdtrc(dof, chi2), 1e-300)))
 
 
+def _varies(
+    how: str, log10_p: float, spread: float, limit: float, options: LoopOptions, meaning: str
+) -> str | None:
+    """Why a size fitted part by part (``how``) varies beyond the noise and the ``limit``."""
+    if log10_p < options.repeatability_log10 and spread > limit:
+        return (
+            f"{how}, its size varies by {100 * spread:.0f} % (log10 false alarm {log10_p:.1f}), "
+            f"far beyond the noise; {meaning}"
+        )
+    return None
+
+
 def _unrepeatable(sizes: _Sizes, options: LoopOptions, exact_shape: bool = False) -> str | None:
     """Why a candidate is refused for sizes that change from run to run within its lines.
 
@@ -1613,42 +1625,40 @@ def _unrepeatable(sizes: _Sizes, options: LoopOptions, exact_shape: bool = False
     scale or lever arm on its own line), so no misfit of shape can make its size vary: the
     tighter ``repeatability_spread_setup`` applies."""
     limit = options.repeatability_spread_setup if exact_shape else options.repeatability_spread
-    if sizes.run_log10_p < options.repeatability_log10 and sizes.run_spread > limit:
-        return (
-            f"not repeatable: fitted run by run within each line, its size varies by "
-            f"{100 * sizes.run_spread:.0f} % (log10 false alarm {sizes.run_log10_p:.1f}), far "
-            "beyond the noise; a reflector that twitches or a scale that changes in time is not "
-            "this effect: refused"
-        )
-    return None
+    return _varies(
+        "not repeatable: fitted run by run within each line",
+        sizes.run_log10_p,
+        sizes.run_spread,
+        limit,
+        options,
+        "a reflector that twitches or a scale that changes in time is not this effect: refused",
+    )
 
 
 def _uneven(sizes: _Sizes, options: LoopOptions) -> str | None:
     """Why a set-up effect is refused for a size that changes along its line."""
-    if sizes.along_log10_p < options.repeatability_log10 and (
-        sizes.along_spread > options.repeatability_spread_setup
-    ):
-        return (
-            f"uneven along its line: fitted block by block of {BLOCK_MM:g} mm of targets, its "
-            f"size varies by {100 * sizes.along_spread:.0f} % (log10 false alarm "
-            f"{sizes.along_log10_p:.1f}), far beyond the noise; a set-up's scale or lever arm "
-            "has one size along the line, so it took structure at one place of it: refused"
-        )
-    return None
+    return _varies(
+        f"uneven along its line: fitted block by block of {BLOCK_MM:g} mm of targets",
+        sizes.along_log10_p,
+        sizes.along_spread,
+        options.repeatability_spread_setup,
+        options,
+        "a set-up's scale or lever arm has one size along the line, so it took structure at "
+        "one place of it: refused",
+    )
 
 
 def _unequal(sizes: _Sizes, options: LoopOptions) -> str | None:
     """Why a kept effect is taken out for sizes that differ between the lines that show it."""
-    if sizes.line_log10_p < options.repeatability_log10 and (
-        sizes.line_spread > options.repeatability_spread
-    ):
-        return (
-            f"not one size on every line: fitted line by line, with every other kept effect in "
-            f"the model, its size varies by {100 * sizes.line_spread:.0f} % (log10 false alarm "
-            f"{sizes.line_log10_p:.1f}), far beyond the noise; it does not describe the "
-            "structure it took"
-        )
-    return None
+    return _varies(
+        "not one size on every line: fitted line by line, with every other kept effect in the "
+        "model",
+        sizes.line_log10_p,
+        sizes.line_spread,
+        options.repeatability_spread,
+        options,
+        "it does not describe the structure it took",
+    )
 
 
 def _cv_warnings(readings: Readings, cv: CrossValidation, redundant: Sequence[str]) -> list[str]:
