@@ -101,8 +101,7 @@ class LoopOptions:
         and by more than this share is refused (:func:`_sizes`); the share tolerates a shape
         that fits the structure imperfectly.
     repeatability_spread_setup : the same share for a set-up effect (Abbe offset, cosine
-        misalignment), whose shape is exact; its size must also be the same along its line
-        (fitted block by block of targets).
+        misalignment), whose shape is exact.
     time_constants_s : the range over which a time-driven drift's τ is estimated.
     cross_axis_orders, cross_axis_lever_orders : the total degrees tried for a cross-axis
         surface without and with lever-arm terms (:class:`CrossAxis`; chosen by cross-validation).
@@ -396,9 +395,7 @@ class _Tester:
             [self.system.target_design.T @ agg, np.asarray((wd.T @ self.system.effect_design).T)]
         )
         energy = np.bincount(inverse, weights=wc * values, minlength=keys.size)
-        f, log_p, _, beta = self._f_test(
-            np.diag(energy), atwd, np.asarray(d.T @ self.wr), sizes=True
-        )
+        f, log_p, _, beta = self._f_test(np.diag(energy), atwd, np.asarray(d.T @ self.wr))
         share = energy / max(float(energy.sum()), 1e-300)
         return f, log_p, beta, share
 
@@ -419,17 +416,9 @@ class _Tester:
         return np.maximum(energy - absorbed, 0.0) / self.sigma2
 
     def _f_test(
-        self, dtwd: FloatArray, atwd: FloatArray, dtwr: FloatArray, sizes: bool = False
+        self, dtwd: FloatArray, atwd: FloatArray, dtwr: FloatArray
     ) -> tuple[float, float, float, FloatArray]:
-        """The projected F-test of candidate columns from DᵀWD, AᵀWD and DᵀWr.
-
-        ``sizes``: the columns are one contribution split by group, and the returned parameters
-        are the relative changes of size they ask for. A pattern of changes the model absorbs
-        almost whole (it leaves less than :data:`SIZES_VISIBLE` of it: every X line's drift
-        scaled alike, which EXX takes up) cannot be sized: its least-squares change is the noise,
-        or any structure the model still lacks, divided by almost nothing, and it is left out
-        of the changes. The test itself keeps every pattern.
-        """
+        """The projected F-test of candidate columns from DᵀWD, AᵀWD and DᵀWr."""
         s = dtwd - atwd.T @ self.ident.normal_inverse @ atwd
         diag = np.diag(dtwd)
         share = np.where(diag > 0, np.diag(s) / np.where(diag > 0, diag, 1.0), 0.0)
@@ -447,11 +436,7 @@ class _Tester:
             return 0.0, 0.0, detect, beta
         proj = vectors[:, keep].T @ np.ravel(dtwr)[useful]
         delta = float(np.sum(proj**2 / values[keep]))
-        change = proj / values[keep]
-        if sizes:
-            raw = (vectors[:, keep] ** 2 * diag[useful][:, None]).sum(axis=0)
-            change = np.where(values[keep] >= SIZES_VISIBLE * raw, change, 0.0)
-        beta[useful] = vectors[:, keep] @ change
+        beta[useful] = vectors[:, keep] @ (proj / values[keep])
         f_stat = (delta / k) / self.sigma2
         from scipy import special  # the distributions' functions without scipy.stats' overhead
 
@@ -1469,15 +1454,11 @@ def _judge(
             "not describe the structure it fits; refused",
             "not confirmed",
         )
-    exact_shape = effect.line_index is not None
-    sizes = _sizes(refit, contribution, along=exact_shape)
-    unrepeatable = _unrepeatable(sizes, options, exact_shape)
+    unrepeatable = _unrepeatable(
+        _sizes(refit, contribution), options, exact_shape=effect.line_index is not None
+    )
     if unrepeatable is not None:
         return refused(unrepeatable, "not repeatable")
-    if exact_shape:
-        uneven = _uneven(sizes, options)
-        if uneven is not None:
-            return refused(uneven, "uneven along its line")
     return _Trial(finding, refit, cv_new, True, reason, parameters, score=after)
 
 
@@ -1493,14 +1474,9 @@ VERDICTS = (
     "below margin",
     "not confirmed",
     "not repeatable",
-    "uneven along its line",
     "estimated again",
     "taken out",
 )
-
-#: A pattern of size changes the model leaves less than this share of cannot be sized
-#: (:meth:`_Tester._f_test`).
-SIZES_VISIBLE = 0.002
 #: A line shows an effect when what the 21 errors cannot absorb of it there reaches 4 σ.
 SHOWN_SIGMA2 = 16.0
 #: Machine effects that one line alone cannot tell from an artefact of that line's set-up.
@@ -1534,18 +1510,15 @@ def _uncorroborated(effect: Effect, energy: FloatArray, readings: Readings) -> s
 @dataclass(frozen=True)
 class _Sizes:
     """How much the size of one fitted contribution varies, beyond the noise, between the lines
-    that show it, between the runs within each of them and, for a set-up effect, along each
-    line (between blocks of its targets)."""
+    that show it and between the runs within each of them."""
 
     line_log10_p: float
     line_spread: float
     run_log10_p: float
     run_spread: float
-    along_log10_p: float = 0.0
-    along_spread: float = 0.0
 
 
-def _sizes(refit: Identification, contribution: FloatArray, along: bool = False) -> _Sizes:
+def _sizes(refit: Identification, contribution: FloatArray) -> _Sizes:
     """Split a fitted contribution by line and by run and test the splits against the refit
     (:meth:`_Tester.test_split`: what the model can absorb is projected out, so a difference the
     21 errors or a line's zero take up is not held against it).
@@ -1553,16 +1526,14 @@ def _sizes(refit: Identification, contribution: FloatArray, along: bool = False)
     Lines and runs where it shows less than 4 σ are pooled. The run split holds the line split
     (a weak run counts with its line), so the difference of the two χ² drops tests the runs
     within lines alone: that part cannot come from another effect the model still lacks, which
-    acts alike in every run of a line. Each run's change is taken against its line's mean in the
-    same fit: a pattern common to a line's runs is the line split's business.
-
-    ``along``: split each line into blocks of :data:`BLOCK_MM` mm of targets the same way. An
-    effect whose shape is exact (a set-up's scale or lever arm) has one size along its line; a
-    fit to structure at one place of the line does not.
+    acts alike in every run of a line.
     """
+    from scipy import special
+
     tester = _Tester(refit)
     readings = refit.readings
     line = readings.line.astype(np.int64)
+    run = (line + 1) * 10_000 + readings.run  # never equal to a line index
     energy = tester.w / tester.sigma2 * contribution**2
 
     def strong(groups: NDArray[np.int64]) -> NDArray[np.bool_]:
@@ -1570,52 +1541,25 @@ def _sizes(refit: Identification, contribution: FloatArray, along: bool = False)
         return np.isin(groups, keys[np.bincount(inverse, weights=energy) >= SHOWN_SIGMA2])
 
     line_split = np.where(strong(line), line, -1)
+    run_split = np.where(strong(run), run, line_split)
     f_line, log_line, beta_line, share_line = tester.test_split(contribution, line_split)
     k_line = tester.last_dimensions
+    f_run, _, beta_run, share_run = tester.test_split(contribution, run_split)
+    k_run = tester.last_dimensions
     line_spread = float(np.sqrt(np.sum(share_line * beta_line**2)))
-
-    def within_lines(sub: NDArray[np.int64]) -> tuple[float, float]:
-        """(log10 false alarm, spread) of the sizes of the parts ``sub`` within each line."""
-        split = np.where(strong(sub), sub, line_split)
-        f_sub, _, beta, share = tester.test_split(contribution, split)
-        dof = tester.last_dimensions - k_line
-        gain = f_sub * tester.last_dimensions - f_line * k_line
-        _, first = np.unique(split, return_index=True)
-        _, of_line = np.unique(line_split[first], return_inverse=True)
-        weight = np.bincount(of_line, weights=share)
-        mean = np.bincount(of_line, weights=share * beta) / np.maximum(weight, 1e-300)
-        spread = float(np.sqrt(np.sum(share * (beta - mean[of_line]) ** 2)))
-        return _log10_chi2_tail(dof, gain), spread
-
-    # group labels that never equal a line index
-    run_log, run_spread = within_lines((line + 1) * 10_000 + readings.run)
-    along_log, along_spread = 0.0, 0.0
-    if along:
-        block = np.floor(readings.target_mm / BLOCK_MM).astype(np.int64)
-        along_log, along_spread = within_lines((line + 1) * 10_000 + block)
-    return _Sizes(log_line, line_spread, run_log, run_spread, along_log, along_spread)
-
-
-def _log10_chi2_tail(dof: int, chi2: float) -> float:
-    """log10 of the χ² tail probability, 0 where there is nothing to test."""
-    if dof <= 0 or chi2 <= 0:
-        return 0.0
-    from scipy import special
-
-    with np.errstate(divide="ignore"):
-        return float(np.log10(max(special.chdtrc(dof, chi2), 1e-300)))
-
-
-def _varies(
-    how: str, log10_p: float, spread: float, limit: float, options: LoopOptions, meaning: str
-) -> str | None:
-    """Why a size fitted part by part (``how``) varies beyond the noise and the ``limit``."""
-    if log10_p < options.repeatability_log10 and spread > limit:
-        return (
-            f"{how}, its size varies by {100 * spread:.0f} % (log10 false alarm {log10_p:.1f}), "
-            f"far beyond the noise; {meaning}"
-        )
-    return None
+    # each run's size against its line's
+    _, run_index = np.unique(run_split, return_index=True)
+    line_keys = np.unique(line_split)
+    of_line = np.searchsorted(line_keys, line_split[run_index])
+    within = beta_run - beta_line[of_line]
+    run_spread = float(np.sqrt(np.sum(share_run * within**2)))
+    gain = f_run * k_run - f_line * k_line
+    dof = k_run - k_line
+    run_log = 0.0
+    if dof > 0 and gain > 0:
+        with np.errstate(divide="ignore"):
+            run_log = float(np.log10(max(special.chdtrc(dof, gain), 1e-300)))
+    return _Sizes(log_line, line_spread, run_log, run_spread)
 
 
 def _unrepeatable(sizes: _Sizes, options: LoopOptions, exact_shape: bool = False) -> str | None:
@@ -1625,40 +1569,28 @@ def _unrepeatable(sizes: _Sizes, options: LoopOptions, exact_shape: bool = False
     scale or lever arm on its own line), so no misfit of shape can make its size vary: the
     tighter ``repeatability_spread_setup`` applies."""
     limit = options.repeatability_spread_setup if exact_shape else options.repeatability_spread
-    return _varies(
-        "not repeatable: fitted run by run within each line",
-        sizes.run_log10_p,
-        sizes.run_spread,
-        limit,
-        options,
-        "a reflector that twitches or a scale that changes in time is not this effect: refused",
-    )
-
-
-def _uneven(sizes: _Sizes, options: LoopOptions) -> str | None:
-    """Why a set-up effect is refused for a size that changes along its line."""
-    return _varies(
-        f"uneven along its line: fitted block by block of {BLOCK_MM:g} mm of targets",
-        sizes.along_log10_p,
-        sizes.along_spread,
-        options.repeatability_spread_setup,
-        options,
-        "a set-up's scale or lever arm has one size along the line, so it took structure at "
-        "one place of it: refused",
-    )
+    if sizes.run_log10_p < options.repeatability_log10 and sizes.run_spread > limit:
+        return (
+            f"not repeatable: fitted run by run within each line, its size varies by "
+            f"{100 * sizes.run_spread:.0f} % (log10 false alarm {sizes.run_log10_p:.1f}), far "
+            "beyond the noise; a reflector that twitches or a scale that changes in time is not "
+            "this effect: refused"
+        )
+    return None
 
 
 def _unequal(sizes: _Sizes, options: LoopOptions) -> str | None:
     """Why a kept effect is taken out for sizes that differ between the lines that show it."""
-    return _varies(
-        "not one size on every line: fitted line by line, with every other kept effect in the "
-        "model",
-        sizes.line_log10_p,
-        sizes.line_spread,
-        options.repeatability_spread,
-        options,
-        "it does not describe the structure it took",
-    )
+    if sizes.line_log10_p < options.repeatability_log10 and (
+        sizes.line_spread > options.repeatability_spread
+    ):
+        return (
+            f"not one size on every line: fitted line by line, with every other kept effect in "
+            f"the model, its size varies by {100 * sizes.line_spread:.0f} % (log10 false alarm "
+            f"{sizes.line_log10_p:.1f}), far beyond the noise; it does not describe the "
+            "structure it took"
+        )
+    return None
 
 
 def _cv_warnings(readings: Readings, cv: CrossValidation, redundant: Sequence[str]) -> list[str]:

@@ -7,9 +7,7 @@ read the method), for behaviours its suite showed missing:
 - an error periodic in time, which only widens the run-to-run spread of the lines it acts on, is
   reported as unexplained on each of them, and nothing is kept for it;
 - a scale that oscillates in time, which a surface over two axes or a drift can mimic on the
-  lines it crosses, is not kept as either: neither has one size on those lines;
-- a drift whose size, fitted line by line or run by run, changes only along a pattern the model
-  absorbs almost whole is kept: that change is noise over what the model leaves of it;
+  lines it crosses, is not kept as either: neither has one size on those lines or runs;
 - a drift that only the first line shows before it settles is kept on what the angular lines
   say;
 - a surface the plan cannot place (another direction or pair predicts the held-out data as well)
@@ -79,8 +77,8 @@ def test_an_error_periodic_in_time_is_reported_on_every_line_it_acts_on(seed: in
 @pytest.mark.parametrize("seed", [1005, 1067, 5028])
 def test_a_scale_oscillating_in_time_is_not_kept_as_a_surface_or_a_drift(seed: int) -> None:
     # 1005, 1067: a surface fits some lines at twice its size and others at none; 5028
-    # (twelve-line plan, 56 min period): a drift in time is kept, then the final audit finds its
-    # size changes tenfold from line to line at 10⁻²⁰⁰ and takes it out
+    # (twelve-line plan, 56 min period): a drift in time takes 8 % of the held-out error and is
+    # refused: fitted run by run, its size varies far beyond the noise
     outcome = run_blind(seed)
     assert outcome.category == "outside"
     assert not outcome.kept
@@ -193,14 +191,3 @@ def test_a_bump_a_finer_function_follows_as_well_is_kept_as_a_bump() -> None:
     outcome = run_blind(4043)
     assert outcome.kept == outcome.expected == {("abbe_offset", "z_linear"), ("local", "Z in Y")}
     assert outcome.function_error["EYZ"] < 0.35
-
-
-def test_a_drift_is_not_refused_for_sizes_the_model_absorbs() -> None:
-    # twelve-line plan, noise 0.45 µm: a reversal of X, a bump of EZZ and X expanding over the
-    # session. Split run by run, the drift's size changed by 16 500 % along one pattern: every X
-    # line's drift scaled alike, which EXX absorbs but for 10⁻⁵ of it, so its least-squares size
-    # was the noise (1.8 σ) divided by almost nothing. Such a pattern now counts only where the
-    # data demand it, and the drift is kept
-    outcome = run_blind(5142)
-    assert outcome.kept == outcome.expected
-    assert ("thermal_drift", "X") in outcome.kept
