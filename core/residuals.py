@@ -1700,7 +1700,7 @@ def close_loop(
                 )
         if chosen is None:
             break
-        alike = _alike(chosen, tried_this_step, current, cv, options.tie)
+        alike = _alike(chosen, tried_this_step, options.tie)
         if alike is not None:
             ambiguous[chosen.finding.effect.key] = alike
         effect = chosen.finding.effect
@@ -1731,21 +1731,16 @@ def close_loop(
     return LoopResult(base, current, cv_base, cv, tuple(steps), tuple(leftover), tuple(warnings))
 
 
-def _alike(
-    chosen: _Trial,
-    trials: list[_Trial],
-    current: Identification,
-    cv: CrossValidation,
-    tie: float,
-) -> str | None:
+def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> str | None:
     """A warning when the kept surface has a rival of another direction or pair of axes that
     predicts the held-out data as well (within ``tie``), passing or refused only for showing on
-    one line: the plan cannot tell which of the two the machine has."""
+    one line: the plan cannot tell which of the two the machine has. Each trial's score is its
+    cross-validated error over the readings its comparison with the step's model ran on."""
     effect = chosen.finding.effect
     if not isinstance(effect, CrossAxis):
         return None
     where = (effect.direction, {effect.along, effect.across})
-    _, score, _ = _compared(cv, chosen.cv, current, other_fit=chosen.refit)
+    score = chosen.score
     for trial in trials:
         rival = trial.finding.effect
         if trial is chosen or not isinstance(rival, CrossAxis):
@@ -1754,7 +1749,7 @@ def _alike(
             continue
         if not (trial.ok or trial.uncorroborated):
             continue
-        _, other = _compared(cv, trial.cv, current, other_fit=trial.refit)[:2]
+        other = trial.score
         if other <= score * (1.0 + tie):
             return (
                 f"{effect.label} was kept, but {rival.label} predicts the held-out data as well "

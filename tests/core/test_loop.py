@@ -230,8 +230,8 @@ def test_an_effect_outside_the_catalogue_is_reported_unexplained_and_not_fitted(
     assert hits[0]["magnitude_um"] == pytest.approx(1.0, rel=0.3)
     # each step says, in the report and on the console, which rule decided it
     steps = report["loop"]
+    kept_verdicts = {"kept", "estimated again"}
     for step in steps:
-        kept_verdicts = {"kept", "estimated again"}
         assert step["verdict"] in VERDICTS
         assert step["kept"] == (step["verdict"] in kept_verdicts), step
     # the surface kept on the bump was taken out by the final audit (one size on every line)
