@@ -96,12 +96,13 @@ class LoopOptions:
         would remove is at least this share of the strongest proposal's.
     tie : candidates whose cross-validated RMS is within this share of the best are equal; the
         one with fewer parameters is kept.
-    repeatability_log10, repeatability_spread : a candidate whose size, fitted run by run (line
-        by line in the final audit), varies beyond the noise at this false-alarm level (log10)
-        and by more than this share is refused (:func:`_sizes`); the share tolerates a shape
-        that fits the structure imperfectly.
-    repeatability_spread_setup : the same share for a set-up effect (Abbe offset, cosine
-        misalignment), whose shape is exact.
+    repeatability_log10, repeatability_spread : a candidate whose size, fitted run by run within
+        a line and an approach direction (line by line in the final audit, block by block of
+        targets along its line for a set-up effect), varies beyond the noise at this false-alarm
+        level (log10) and by more than this share of what the readings see of it is refused
+        (:class:`_Sizes`); the share tolerates a shape that fits the structure imperfectly.
+    repeatability_spread_setup : the share for a set-up effect (Abbe offset, cosine
+        misalignment) run by run, whose shape is exact.
     time_constants_s : the range over which a time-driven drift's τ is estimated.
     cross_axis_orders, cross_axis_lever_orders : the total degrees tried for a cross-axis
         surface without and with lever-arm terms (:class:`CrossAxis`; chosen by cross-validation).
@@ -116,7 +117,7 @@ class LoopOptions:
     retry_factor: float = 2.0
     contender_share: float = 0.25
     tie: float = 0.01
-    repeatability_log10: float = -5.0
+    repeatability_log10: float = -4.0
     repeatability_spread: float = 0.3
     repeatability_spread_setup: float = 0.1
     time_constants_s: tuple[float, float] = (300.0, 7 * 86400.0)
@@ -1454,11 +1455,15 @@ def _judge(
             "not describe the structure it fits; refused",
             "not confirmed",
         )
-    unrepeatable = _unrepeatable(
-        _sizes(refit, contribution), options, exact_shape=effect.line_index is not None
-    )
+    exact_shape = effect.line_index is not None
+    sizes = _Sizes(refit, index)
+    unrepeatable = _unrepeatable(sizes.by_run(), options, exact_shape)
     if unrepeatable is not None:
         return refused(unrepeatable, "not repeatable")
+    if exact_shape:
+        uneven = _uneven(sizes.along_line(), options)
+        if uneven is not None:
+            return refused(uneven, "uneven along its line")
     return _Trial(finding, refit, cv_new, True, reason, parameters, score=after)
 
 
@@ -1474,6 +1479,7 @@ VERDICTS = (
     "below margin",
     "not confirmed",
     "not repeatable",
+    "uneven along its line",
     "estimated again",
     "taken out",
 )
@@ -1507,87 +1513,147 @@ def _uncorroborated(effect: Effect, energy: FloatArray, readings: Readings) -> s
     )
 
 
+def _approach_code(readings: Readings) -> IntArray:
+    """One integer per reading for its approach direction (the signs of every axis' last move)."""
+    signs = np.rint(readings.approach).astype(np.int64) + 1
+    return signs @ np.array([1, 3, 9], dtype=np.int64)
+
+
 @dataclass(frozen=True)
+class _Change:
+    """How much the size of a fitted contribution changes between groups of readings, beyond the
+    noise: log10 false alarm of the change and its spread (:class:`_Sizes`)."""
+
+    log10_p: float
+    spread: float
+
+
 class _Sizes:
-    """How much the size of one fitted contribution varies, beyond the noise, between the lines
-    that show it and between the runs within each of them."""
+    """Whether the fitted contribution of ``fit``'s effect ``index`` has one size between the
+    lines that show it, the runs of each line and, for a set-up effect, along each line.
 
-    line_log10_p: float
-    line_spread: float
-    run_log10_p: float
-    run_spread: float
-
-
-def _sizes(refit: Identification, contribution: FloatArray) -> _Sizes:
-    """Split a fitted contribution by line and by run and test the splits against the refit
+    The contribution is split by group and the split tested against the fit
     (:meth:`_Tester.test_split`: what the model can absorb is projected out, so a difference the
-    21 errors or a line's zero take up is not held against it).
+    21 errors or a line's zero take up is not held against it). Groups where it shows less than
+    4 σ are pooled with the group that holds them. A split tested within a coarser one (runs
+    within their line and approach direction, blocks of targets within their line) counts the
+    difference of the two χ² drops: a change between the coarser groups is not held against it.
 
-    Lines and runs where it shows less than 4 σ are pooled. The run split holds the line split
-    (a weak run counts with its line), so the difference of the two χ² drops tests the runs
-    within lines alone: that part cannot come from another effect the model still lacks, which
-    acts alike in every run of a line.
+    The spread is the square root of what a split removes from the residual, beyond its degrees
+    of freedom, over what the readings see of the effect: the part of its contribution the rest
+    of the model cannot absorb (its Wald χ², :func:`_wald`). A change of size the model takes up
+    almost whole costs nothing, however large its least-squares value; a change the readings see
+    better than the effect itself (a drift fitted to a laser that wanders, its contribution
+    absorbed by the 21 errors but for a trace) is larger than the effect.
     """
-    from scipy import special
 
-    tester = _Tester(refit)
-    readings = refit.readings
-    line = readings.line.astype(np.int64)
-    run = (line + 1) * 10_000 + readings.run  # never equal to a line index
-    energy = tester.w / tester.sigma2 * contribution**2
+    def __init__(self, fit: Identification, index: int) -> None:
+        effect = fit.effects[index]
+        assert isinstance(effect, Effect)
+        self.contribution = effect.design(fit.readings, fit.model) @ fit.effect_parameters[index]
+        self.seen = max(_wald(fit, index), 1e-300)
+        self.tester = _Tester(fit)
+        self.energy = self.tester.w / self.tester.sigma2 * self.contribution**2
+        readings = fit.readings
+        self.line = readings.line.astype(np.int64)
+        self.readings = readings
+        self._drops: dict[str, tuple[float, int]] = {}
 
-    def strong(groups: NDArray[np.int64]) -> NDArray[np.bool_]:
+    def _pooled(self, groups: IntArray, coarser: IntArray) -> IntArray:
+        """``groups``, where the contribution shows less than 4 σ the ``coarser`` group."""
         keys, inverse = np.unique(groups, return_inverse=True)
-        return np.isin(groups, keys[np.bincount(inverse, weights=energy) >= SHOWN_SIGMA2])
+        shown = keys[np.bincount(inverse, weights=self.energy) >= SHOWN_SIGMA2]
+        return np.where(np.isin(groups, shown), groups, coarser)
 
-    line_split = np.where(strong(line), line, -1)
-    run_split = np.where(strong(run), run, line_split)
-    f_line, log_line, beta_line, share_line = tester.test_split(contribution, line_split)
-    k_line = tester.last_dimensions
-    f_run, _, beta_run, share_run = tester.test_split(contribution, run_split)
-    k_run = tester.last_dimensions
-    line_spread = float(np.sqrt(np.sum(share_line * beta_line**2)))
-    # each run's size against its line's
-    _, run_index = np.unique(run_split, return_index=True)
-    line_keys = np.unique(line_split)
-    of_line = np.searchsorted(line_keys, line_split[run_index])
-    within = beta_run - beta_line[of_line]
-    run_spread = float(np.sqrt(np.sum(share_run * within**2)))
-    gain = f_run * k_run - f_line * k_line
-    dof = k_run - k_line
-    run_log = 0.0
-    if dof > 0 and gain > 0:
+    def _drop(self, name: str) -> tuple[float, int]:
+        """χ² drop (σ² units) and degrees of freedom of the split ``name``."""
+        if name not in self._drops:
+            line = self._pooled(self.line, np.full_like(self.line, -1))
+            if name == "line":
+                split = line
+            elif name == "side":  # labels never equal to a line's
+                split = self._pooled(-2 - (self.line * 27 + _approach_code(self.readings)), line)
+            elif name == "run":
+                side = -2 - (self.line * 27 + _approach_code(self.readings))
+                run = (self.line + 1) * 10_000 + self.readings.run
+                split = self._pooled(run, self._pooled(side, line))
+            else:  # blocks of targets along each line
+                block = np.floor(self.readings.target_mm / BLOCK_MM).astype(np.int64)
+                split = self._pooled(-(self.line + 1) * 10_000 - block, line)
+            f, _, _, _ = self.tester.test_split(self.contribution, split)
+            self._drops[name] = (f * self.tester.last_dimensions, self.tester.last_dimensions)
+        return self._drops[name]
+
+    def _change(self, name: str, within: str | None = None) -> _Change:
+        from scipy import special
+
+        gain, dof = self._drop(name)
+        if within is not None:
+            gain, dof = gain - self._drop(within)[0], dof - self._drop(within)[1]
+        if dof <= 0 or gain <= 0:
+            return _Change(0.0, 0.0)
         with np.errstate(divide="ignore"):
-            run_log = float(np.log10(max(special.chdtrc(dof, gain), 1e-300)))
-    return _Sizes(log_line, line_spread, run_log, run_spread)
+            log_p = float(np.log10(max(special.chdtrc(dof, gain), 1e-300)))
+        return _Change(log_p, float(np.sqrt(max(gain - dof, 0.0) / self.seen)))
+
+    def by_line(self) -> _Change:
+        """Between the lines that show it."""
+        return self._change("line")
+
+    def by_run(self) -> _Change:
+        """Between the runs of each line in one approach direction: another effect the model
+        still lacks acts alike in every run of a line, and a reversal it describes imperfectly
+        (one whose size changes along the stroke) alike in every run of one direction."""
+        return self._change("run", within="side")
+
+    def along_line(self) -> _Change:
+        """Between blocks of :data:`BLOCK_MM` mm of targets along each line: a set-up's scale or
+        lever arm has one size along its line."""
+        return self._change("block", within="line")
 
 
-def _unrepeatable(sizes: _Sizes, options: LoopOptions, exact_shape: bool = False) -> str | None:
+def _unrepeatable(change: _Change, options: LoopOptions, exact_shape: bool = False) -> str | None:
     """Why a candidate is refused for sizes that change from run to run within its lines.
 
     ``exact_shape``: the candidate's shape is exactly that of the effect it names (a set-up's
     scale or lever arm on its own line), so no misfit of shape can make its size vary: the
     tighter ``repeatability_spread_setup`` applies."""
     limit = options.repeatability_spread_setup if exact_shape else options.repeatability_spread
-    if sizes.run_log10_p < options.repeatability_log10 and sizes.run_spread > limit:
+    if change.log10_p < options.repeatability_log10 and change.spread > limit:
         return (
             f"not repeatable: fitted run by run within each line, its size varies by "
-            f"{100 * sizes.run_spread:.0f} % (log10 false alarm {sizes.run_log10_p:.1f}), far "
+            f"{100 * change.spread:.0f} % (log10 false alarm {change.log10_p:.1f}), far "
             "beyond the noise; a reflector that twitches or a scale that changes in time is not "
             "this effect: refused"
         )
     return None
 
 
-def _unequal(sizes: _Sizes, options: LoopOptions) -> str | None:
+def _uneven(change: _Change, options: LoopOptions) -> str | None:
+    """Why a set-up effect (an Abbe offset, a cosine misalignment) is refused for a size that
+    changes along its line. The spread allowed is a machine effect's, not the set-up's tighter
+    one: along the line, effects the model still lacks spoil the fit of its exact shape."""
+    if change.log10_p < options.repeatability_log10 and (
+        change.spread > options.repeatability_spread
+    ):
+        return (
+            f"uneven along its line: fitted block by block of {BLOCK_MM:g} mm of targets, its "
+            f"size varies by {100 * change.spread:.0f} % (log10 false alarm "
+            f"{change.log10_p:.1f}), far beyond the noise; a set-up's scale or lever arm "
+            "has one size along the line, so it took structure at one place of it: refused"
+        )
+    return None
+
+
+def _unequal(change: _Change, options: LoopOptions) -> str | None:
     """Why a kept effect is taken out for sizes that differ between the lines that show it."""
-    if sizes.line_log10_p < options.repeatability_log10 and (
-        sizes.line_spread > options.repeatability_spread
+    if change.log10_p < options.repeatability_log10 and (
+        change.spread > options.repeatability_spread
     ):
         return (
             f"not one size on every line: fitted line by line, with every other kept effect in "
-            f"the model, its size varies by {100 * sizes.line_spread:.0f} % (log10 false alarm "
-            f"{sizes.line_log10_p:.1f}), far beyond the noise; it does not describe the "
+            f"the model, its size varies by {100 * change.spread:.0f} % (log10 false alarm "
+            f"{change.log10_p:.1f}), far beyond the noise; it does not describe the "
             "structure it took"
         )
     return None
@@ -1950,7 +2016,7 @@ def _audit(
 ) -> tuple[Identification, CrossValidation, list[Effect]]:
     """With every kept effect in the model, each must still be physically plausible (a refit with
     later effects can move an Abbe offset's lever arm past the optics' reach), and each effect of
-    one shape must have one size on every line that shows it (:func:`_sizes`); an implausible
+    one shape must have one size on every line that shows it (:class:`_Sizes`); an implausible
     one, else the one that varies most, is taken out and the rest refitted, until all agree.
     Done at the end because while another effect was still missing, the lines it spoils could
     not agree. A finer function is a basis whose every line sees a slice of its own: how well
@@ -1973,10 +2039,10 @@ def _audit(
                 continue
             if effect.kind not in ONE_SHAPE:
                 continue
-            sizes = _sizes(current, effect.design(current.readings, current.model) @ values)
-            why = _unequal(sizes, options)
+            change = _Sizes(current, index).by_line()
+            why = _unequal(change, options)
             if why is not None:
-                failures.append((sizes.line_spread, effect, why))
+                failures.append((change.spread, effect, why))
         if not failures:
             break
         _, effect, why = max(failures, key=lambda f: f[0])
