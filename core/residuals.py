@@ -1555,32 +1555,39 @@ class _Sizes:
         self.tester = _Tester(fit)
         self.energy = self.tester.w / self.tester.sigma2 * self.contribution**2
         readings = fit.readings
-        self.line = readings.line.astype(np.int64)
-        self.readings = readings
+        line = readings.line.astype(np.int64)
+        block = np.floor(readings.target_mm / BLOCK_MM).astype(np.int64)
+        # labels of lines, sides (a line's runs in one approach direction), runs and blocks of
+        # targets, never equal to one another
+        self.labels = {
+            "line": line,
+            "side": -2 - (line * 27 + _approach_code(readings)),
+            "run": (line + 1) * 10_000 + readings.run,
+            "block": -(line + 1) * 10_000 - block,
+        }
         self._drops: dict[str, tuple[float, int]] = {}
 
-    def _pooled(self, groups: IntArray, coarser: IntArray) -> IntArray:
-        """``groups``, where the contribution shows less than 4 σ the ``coarser`` group."""
+    def _pooled(self, name: str, coarser: IntArray) -> IntArray:
+        """The groups ``name``, where the contribution shows less than 4 σ the ``coarser`` one."""
+        groups = self.labels[name]
         keys, inverse = np.unique(groups, return_inverse=True)
         shown = keys[np.bincount(inverse, weights=self.energy) >= SHOWN_SIGMA2]
         return np.where(np.isin(groups, shown), groups, coarser)
 
+    def _split(self, name: str) -> IntArray:
+        """A label per reading: runs held in their side, sides and blocks in their line."""
+        line = self._pooled("line", np.full_like(self.labels["line"], -1))
+        if name == "line":
+            return line
+        if name == "block":
+            return self._pooled("block", line)
+        side = self._pooled("side", line)
+        return side if name == "side" else self._pooled("run", side)
+
     def _drop(self, name: str) -> tuple[float, int]:
         """χ² drop (σ² units) and degrees of freedom of the split ``name``."""
         if name not in self._drops:
-            line = self._pooled(self.line, np.full_like(self.line, -1))
-            if name == "line":
-                split = line
-            elif name == "side":  # labels never equal to a line's
-                split = self._pooled(-2 - (self.line * 27 + _approach_code(self.readings)), line)
-            elif name == "run":
-                side = -2 - (self.line * 27 + _approach_code(self.readings))
-                run = (self.line + 1) * 10_000 + self.readings.run
-                split = self._pooled(run, self._pooled(side, line))
-            else:  # blocks of targets along each line
-                block = np.floor(self.readings.target_mm / BLOCK_MM).astype(np.int64)
-                split = self._pooled(-(self.line + 1) * 10_000 - block, line)
-            f, _, _, _ = self.tester.test_split(self.contribution, split)
+            f, _, _, _ = self.tester.test_split(self.contribution, self._split(name))
             self._drops[name] = (f * self.tester.last_dimensions, self.tester.last_dimensions)
         return self._drops[name]
 
