@@ -408,12 +408,15 @@ def summary_table(result: Mapping[str, Any]) -> str:
 
 
 def _short(parameters: Mapping[str, Any]) -> str:
+    """An effect's first parameters in a few words; a vector (an Abbe offset in x, y, z) whole."""
     parts = []
     for key, value in parameters.items():
         if isinstance(value, float):
             parts.append(f"{key} {value:.4g}")
         elif isinstance(value, (int, str)):
             parts.append(f"{key} {value}")
+        elif isinstance(value, (list, tuple)) and all(isinstance(v, float) for v in value):
+            parts.append(f"{key} ({', '.join(f'{v:.4g}' for v in value)})")
     return ", ".join(parts[:5])
 
 

@@ -93,6 +93,18 @@ def test_abbe_offset_of_a_setup_is_found_on_its_line() -> None:
     assert params["line"] == "x_linear"
     assert params["offset_mm"][2] == pytest.approx(40.0, rel=0.2)
     _clean(report)
+    # the console names the offset found, not only the line
+    table = summary_table(
+        {
+            **report,
+            "lines": 0,
+            "readings": 0,
+            "identifiability": {"rank": 0, "unknowns": 0, "unidentifiable": []},
+        }
+    )
+    (row,) = [r for r in table.splitlines() if r.startswith("  abbe_offset")]
+    x, y, z = params["offset_mm"]
+    assert f"offset_mm ({x:.4g}, {y:.4g}, {z:.4g})" in row
 
 
 def test_cosine_misalignment_of_one_line_is_found() -> None:
