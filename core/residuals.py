@@ -1628,10 +1628,10 @@ def _unrepeatable(change: _Change, options: LoopOptions, exact_shape: bool = Fal
     limit = options.repeatability_spread_setup if exact_shape else options.repeatability_spread
     if change.log10_p < options.repeatability_log10 and change.spread > limit:
         return (
-            f"not repeatable: fitted run by run within each line, its size varies by "
-            f"{100 * change.spread:.0f} % (log10 false alarm {change.log10_p:.1f}), far "
-            "beyond the noise; a reflector that twitches or a scale that changes in time is not "
-            "this effect: refused"
+            "not repeatable: fitted run by run within each line and approach direction, its "
+            f"size varies by {100 * change.spread:.0f} % of what the readings see of it (log10 "
+            f"false alarm {change.log10_p:.1f}), far beyond the noise; a reflector that twitches "
+            "or a scale that changes in time is not this effect: refused"
         )
     return None
 
@@ -1645,9 +1645,9 @@ def _uneven(change: _Change, options: LoopOptions) -> str | None:
     ):
         return (
             f"uneven along its line: fitted block by block of {BLOCK_MM:g} mm of targets, its "
-            f"size varies by {100 * change.spread:.0f} % (log10 false alarm "
-            f"{change.log10_p:.1f}), far beyond the noise; a set-up's scale or lever arm "
-            "has one size along the line, so it took structure at one place of it: refused"
+            f"size varies by {100 * change.spread:.0f} % of what the readings see of it (log10 "
+            f"false alarm {change.log10_p:.1f}), far beyond the noise; a set-up's scale or lever "
+            "arm has one size along the line, so it took structure at one place of it: refused"
         )
     return None
 
@@ -1659,9 +1659,9 @@ def _unequal(change: _Change, options: LoopOptions) -> str | None:
     ):
         return (
             f"not one size on every line: fitted line by line, with every other kept effect in "
-            f"the model, its size varies by {100 * change.spread:.0f} % (log10 false alarm "
-            f"{change.log10_p:.1f}), far beyond the noise; it does not describe the "
-            "structure it took"
+            f"the model, its size varies by {100 * change.spread:.0f} % of what the readings see "
+            f"of it (log10 false alarm {change.log10_p:.1f}), far beyond the noise; it does not "
+            "describe the structure it took"
         )
     return None
 
