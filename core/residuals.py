@@ -1456,7 +1456,7 @@ def _judge(
             "not confirmed",
         )
     exact_shape = effect.line_index is not None
-    sizes = _Sizes(refit, index)
+    sizes = _Sizes(refit, index, contribution)
     unrepeatable = _unrepeatable(sizes.by_run(), options, exact_shape)
     if unrepeatable is not None:
         return refused(unrepeatable, "not repeatable")
@@ -1529,8 +1529,9 @@ class _Change:
 
 
 class _Sizes:
-    """Whether the fitted contribution of ``fit``'s effect ``index`` has one size between the
-    lines that show it, the runs of each line and, for a set-up effect, along each line.
+    """Whether the fitted ``contribution`` (per reading) of ``fit``'s effect ``index`` has one
+    size between the lines that show it, the runs of each line and, for a set-up effect, along
+    each line.
 
     The contribution is split by group and the split tested against the fit
     (:meth:`_Tester.test_split`: what the model can absorb is projected out, so a difference the
@@ -1547,10 +1548,8 @@ class _Sizes:
     absorbed by the 21 errors but for a trace) is larger than the effect.
     """
 
-    def __init__(self, fit: Identification, index: int) -> None:
-        effect = fit.effects[index]
-        assert isinstance(effect, Effect)
-        self.contribution = effect.design(fit.readings, fit.model) @ fit.effect_parameters[index]
+    def __init__(self, fit: Identification, index: int, contribution: FloatArray) -> None:
+        self.contribution = contribution
         self.seen = max(_wald(fit, index), 1e-300)
         self.tester = _Tester(fit)
         self.energy = self.tester.w / self.tester.sigma2 * self.contribution**2
@@ -1619,6 +1618,19 @@ class _Sizes:
         return self._change("block", within="line")
 
 
+def _beyond(
+    change: _Change, limit: float, options: LoopOptions, how: str, meaning: str
+) -> str | None:
+    """Why a size changes too much (``how`` it was fitted, then what that means), or None when
+    the change is within the noise (``repeatability_log10``) or within ``limit``."""
+    if change.log10_p < options.repeatability_log10 and change.spread > limit:
+        return (
+            f"{how}, its size varies by {100 * change.spread:.0f} % of what the readings see of "
+            f"it (log10 false alarm {change.log10_p:.1f}), far beyond the noise; {meaning}"
+        )
+    return None
+
+
 def _unrepeatable(change: _Change, options: LoopOptions, exact_shape: bool = False) -> str | None:
     """Why a candidate is refused for sizes that change from run to run within its lines.
 
@@ -1626,44 +1638,39 @@ def _unrepeatable(change: _Change, options: LoopOptions, exact_shape: bool = Fal
     scale or lever arm on its own line), so no misfit of shape can make its size vary: the
     tighter ``repeatability_spread_setup`` applies."""
     limit = options.repeatability_spread_setup if exact_shape else options.repeatability_spread
-    if change.log10_p < options.repeatability_log10 and change.spread > limit:
-        return (
-            "not repeatable: fitted run by run within each line and approach direction, its "
-            f"size varies by {100 * change.spread:.0f} % of what the readings see of it (log10 "
-            f"false alarm {change.log10_p:.1f}), far beyond the noise; a reflector that twitches "
-            "or a scale that changes in time is not this effect: refused"
-        )
-    return None
+    return _beyond(
+        change,
+        limit,
+        options,
+        "not repeatable: fitted run by run within each line and approach direction",
+        "a reflector that twitches or a scale that changes in time is not this effect: refused",
+    )
 
 
 def _uneven(change: _Change, options: LoopOptions) -> str | None:
     """Why a set-up effect (an Abbe offset, a cosine misalignment) is refused for a size that
     changes along its line. The spread allowed is a machine effect's, not the set-up's tighter
     one: along the line, effects the model still lacks spoil the fit of its exact shape."""
-    if change.log10_p < options.repeatability_log10 and (
-        change.spread > options.repeatability_spread
-    ):
-        return (
-            f"uneven along its line: fitted block by block of {BLOCK_MM:g} mm of targets, its "
-            f"size varies by {100 * change.spread:.0f} % of what the readings see of it (log10 "
-            f"false alarm {change.log10_p:.1f}), far beyond the noise; a set-up's scale or lever "
-            "arm has one size along the line, so it took structure at one place of it: refused"
-        )
-    return None
+    return _beyond(
+        change,
+        options.repeatability_spread,
+        options,
+        f"uneven along its line: fitted block by block of {BLOCK_MM:g} mm of targets",
+        "a set-up's scale or lever arm has one size along the line, so it took structure at one "
+        "place of it: refused",
+    )
 
 
 def _unequal(change: _Change, options: LoopOptions) -> str | None:
     """Why a kept effect is taken out for sizes that differ between the lines that show it."""
-    if change.log10_p < options.repeatability_log10 and (
-        change.spread > options.repeatability_spread
-    ):
-        return (
-            f"not one size on every line: fitted line by line, with every other kept effect in "
-            f"the model, its size varies by {100 * change.spread:.0f} % of what the readings see "
-            f"of it (log10 false alarm {change.log10_p:.1f}), far beyond the noise; it does not "
-            "describe the structure it took"
-        )
-    return None
+    return _beyond(
+        change,
+        options.repeatability_spread,
+        options,
+        "not one size on every line: fitted line by line, with every other kept effect in the "
+        "model",
+        "it does not describe the structure it took",
+    )
 
 
 def _cv_warnings(readings: Readings, cv: CrossValidation, redundant: Sequence[str]) -> list[str]:
@@ -2046,7 +2053,8 @@ def _audit(
                 continue
             if effect.kind not in ONE_SHAPE:
                 continue
-            change = _Sizes(current, index).by_line()
+            contribution = effect.design(current.readings, current.model) @ values
+            change = _Sizes(current, index, contribution).by_line()
             why = _unequal(change, options)
             if why is not None:
                 failures.append((change.spread, effect, why))
