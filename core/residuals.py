@@ -2133,7 +2133,7 @@ def _audit(
         _, effect, why = max(failures, key=lambda f: f[0])
         rest = [e for e in kept if e is not effect]
         refit, cv_new = (base, cv_base) if not rest else fit(rest, current.model)
-        reason = f"removed at the end: {why}"
+        reason = f"removed by the audit: {why}"
         steps.append(
             _later_step(
                 number, effect, current, (refit, cv_new), False, reason, (current, cv), "audit"
