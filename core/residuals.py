@@ -39,7 +39,7 @@ Residuals along a line are autocorrelated, so the F-test only proposes; cross-va
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -1808,6 +1808,22 @@ def _forward(
     state.current, state.cv, state.kept, state.number = current, cv, kept, number
 
 
+def _prune(
+    stage: Callable[..., tuple[Identification, CrossValidation, list[Effect]]],
+    state: _State,
+    fit: _Fitter,
+    base: Identification,
+    cv_base: CrossValidation,
+    options: LoopOptions,
+) -> int:
+    """Run the backward pass or the audit on ``state``; how many effects it took out."""
+    before = len(state.kept)
+    state.current, state.cv, state.kept = stage(
+        fit, state.current, state.cv, state.kept, base, cv_base, options, state.steps, state.number
+    )
+    return before - len(state.kept)
+
+
 def close_loop(
     measurement: Measurement,
     options: LoopOptions | None = None,
@@ -1835,30 +1851,11 @@ def close_loop(
     state = _State(base, cv_base)
     for _ in range(AUDIT_ROUNDS):
         _forward(state, fit, options, progress, cancel, base)
-        state.current, state.cv, state.kept = _backward(
-            fit,
-            state.current,
-            state.cv,
-            state.kept,
-            base,
-            cv_base,
-            options,
-            state.steps,
-            state.number,
-        )
-        taken_out = len(state.steps)
-        state.current, state.cv, state.kept = _audit(
-            fit,
-            state.current,
-            state.cv,
-            state.kept,
-            base,
-            cv_base,
-            options,
-            state.steps,
-            state.number,
-        )
-        if len(state.steps) == taken_out or state.number >= options.max_steps:
+        _prune(_backward, state, fit, base, cv_base, options)
+        if (
+            not _prune(_audit, state, fit, base, cv_base, options)
+            or state.number >= options.max_steps
+        ):
             break
         # what the taken-out effect held is the others' again: every candidate is scored anew
         state.refused.clear()
