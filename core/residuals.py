@@ -333,11 +333,16 @@ def group_rms(identification: Identification) -> dict[str, float]:
 # --------------------------------------------------------------------------------------------
 
 
-#: A candidate column is tested where more than this share of its weighted energy escapes the
-#: current model. Rounding leaves ~1e-13 of an absorbed column; a drift whose contribution the
-#: 21 errors take up almost whole (a scale reached on the later lines, absorbed line by line)
-#: still shows in what changes within a line, ~1e-5 of it.
-USEFUL_SHARE = 1e-9
+#: A column of a candidate, or a group of a fitted contribution in a size test
+#: (:meth:`_Tester.test_split`), is left out when the model takes up all but this share of its
+#: weighted energy: together, the directions of several such columns are too close to null for
+#: rounding to leave their test alone.
+USEFUL_SHARE = 1e-4
+#: The same for a candidate of one column, whose test is a ratio of two numbers: rounding leaves
+#: ~1e-13 of a column the model absorbs, and a drift whose contribution the 21 errors take up
+#: almost whole (a scale the later lines see settled, absorbed line by line) shows only in what
+#: changes within the first line, ~1e-5 of it.
+USEFUL_SHARE_ONE_COLUMN = 1e-9
 
 
 class _Tester:
@@ -380,7 +385,8 @@ class _Tester:
         else:
             target_part = self.system.target_design.T @ agg
         atwd = np.vstack([target_part, self.system.effect_design.T @ wd])
-        return self._f_test(d.T @ wd, atwd, d.T @ self.wr)
+        least = USEFUL_SHARE_ONE_COLUMN if d.shape[1] == 1 else USEFUL_SHARE
+        return self._f_test(d.T @ wd, atwd, d.T @ self.wr, least)
 
     def test_split(
         self, values: FloatArray, groups: NDArray[np.int64]
@@ -403,7 +409,9 @@ class _Tester:
             [self.system.target_design.T @ agg, np.asarray((wd.T @ self.system.effect_design).T)]
         )
         energy = np.bincount(inverse, weights=wc * values, minlength=keys.size)
-        f, log_p, _, beta = self._f_test(np.diag(energy), atwd, np.asarray(d.T @ self.wr))
+        f, log_p, _, beta = self._f_test(
+            np.diag(energy), atwd, np.asarray(d.T @ self.wr), USEFUL_SHARE
+        )
         share = energy / max(float(energy.sum()), 1e-300)
         return f, log_p, beta, share
 
@@ -424,13 +432,14 @@ class _Tester:
         return np.maximum(energy - absorbed, 0.0) / self.sigma2
 
     def _f_test(
-        self, dtwd: FloatArray, atwd: FloatArray, dtwr: FloatArray
+        self, dtwd: FloatArray, atwd: FloatArray, dtwr: FloatArray, useful_share: float
     ) -> tuple[float, float, float, FloatArray]:
-        """The projected F-test of candidate columns from DᵀWD, AᵀWD and DᵀWr."""
+        """The projected F-test of candidate columns from DᵀWD, AᵀWD and DᵀWr; columns the model
+        takes up but for ``useful_share`` of their energy are left out."""
         s = dtwd - atwd.T @ self.ident.normal_inverse @ atwd
         diag = np.diag(dtwd)
         share = np.where(diag > 0, np.diag(s) / np.where(diag > 0, diag, 1.0), 0.0)
-        useful = share > USEFUL_SHARE
+        useful = share > useful_share
         beta = np.zeros(dtwd.shape[0])
         self.last_dimensions = 0
         if not useful.any():
