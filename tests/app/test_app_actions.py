@@ -12,7 +12,6 @@ from pathlib import Path
 
 import pytest
 from PySide6.QtWidgets import (
-    QApplication,
     QDialog,
     QFileDialog,
     QMenu,
@@ -65,9 +64,11 @@ def menu_actions(window):
     return sorted(found, key=order)
 
 
-def visible_dialogs():
-    return [w for w in QApplication.topLevelWidgets()
-            if isinstance(w, QDialog) and w.isVisible()]
+def visible_dialogs(window):
+    """The dialogs open over the window. Asked of its children, not of every top-level widget:
+    the wrappers PySide keeps for widgets Qt made and deleted itself (popups, tooltips) can
+    outlive them, and reading one crashed the process now and then."""
+    return [w for w in window.findChildren(QDialog) if w.isVisible()]
 
 
 @pytest.fixture
@@ -106,7 +107,7 @@ def answered(monkeypatch, tmp_path, demo_run):
 
 def answer_dialogs(qtbot, window, before, messages):
     """Fill and accept (or close) the dialogs the last action opened."""
-    for dialog in visible_dialogs():
+    for dialog in visible_dialogs(window):
         if dialog in before:
             continue
         if isinstance(dialog, ReportDialog):
@@ -160,7 +161,7 @@ def test_every_action_of_every_menu_runs(qtbot, demo_project, answered, tmp_path
     for name, action in actions:
         if not action.isEnabled() or not window.isVisible():
             continue
-        before = visible_dialogs()
+        before = visible_dialogs(window)
         with qtbot.captureExceptions() as exceptions:
             action.trigger()
             qtbot.wait(20)

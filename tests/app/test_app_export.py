@@ -3,7 +3,7 @@
 import json
 
 import pytest
-from PySide6.QtWidgets import QApplication, QMessageBox
+from PySide6.QtWidgets import QMessageBox
 from volucal.core.cli import main
 
 
@@ -58,8 +58,7 @@ def test_bad_options_show_a_message(qtbot, window):
     view = window.views["compensation"]  # not shown: it refreshes before reading its form
     view.axis_names.setText("X=0,Q=1")
     view.run_preview()
-    dialogs = [w for w in QApplication.topLevelWidgets()
-               if isinstance(w, QMessageBox) and w.isVisible()]
+    dialogs = [w for w in window.findChildren(QMessageBox) if w.isVisible()]
     assert [d.text() for d in dialogs] == ["axis names: expected X=NAME,Y=NAME,Z=NAME, got 'Q=1'"]
     assert not view.runner.busy
     dialogs[0].close()

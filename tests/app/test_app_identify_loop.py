@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from PySide6.QtCore import Qt
-from PySide6.QtWidgets import QApplication, QMessageBox
+from PySide6.QtWidgets import QMessageBox
 from volucal.app.document import ProjectDocument
 from volucal.app.mainwindow import MainWindow
 from volucal.app.records import LoopRecord
@@ -35,8 +35,7 @@ def test_identification_from_the_gui_is_the_core_identification(qtbot, fresh_win
     window.identify()
     assert window.busy and window.progress.isVisible()
     window.identify()  # F5 again while it runs: refused with a message, not run twice
-    dialogs = [w for w in QApplication.topLevelWidgets()
-               if isinstance(w, QMessageBox) and w.isVisible()]
+    dialogs = [w for w in window.findChildren(QMessageBox) if w.isVisible()]
     assert "already running" in dialogs[0].text()
     dialogs[0].close()
     wait_idle(view)

@@ -24,12 +24,19 @@ def empty_window(qtbot):
     return window
 
 
+def modal_box(name):
+    """The message box ``name`` the app has open over its window, or None. Asked of the modal
+    widget, not of every top-level widget: the wrappers PySide keeps for widgets Qt made and
+    deleted itself (popups, tooltips) can outlive them, and reading one crashes the process."""
+    box = QApplication.activeModalWidget()
+    if isinstance(box, QMessageBox) and box.objectName() == name and box.isVisible():
+        return box
+    return None
+
+
 def error_dialogs():
-    return [
-        w
-        for w in QApplication.topLevelWidgets()
-        if isinstance(w, QMessageBox) and w.objectName() == "errorDialog" and w.isVisible()
-    ]
+    box = modal_box("errorDialog")
+    return [box] if box is not None else []
 
 
 def close_dialogs():
@@ -213,12 +220,11 @@ def test_a_plan_reading_files_elsewhere_asks_for_that_folder(qtbot, empty_window
     elsewhere.write_text(text.replace('file = "logs/', f'file = "{relative}/'), encoding="utf-8")
 
     def question():
+        # opened over a page of the wizard, which is itself modal: found among its children
         boxes = [
             w
-            for w in QApplication.topLevelWidgets()
-            if isinstance(w, QMessageBox)
-            and w.objectName() == "outsideFolderDialog"
-            and w.isVisible()
+            for w in wizard.findChildren(QMessageBox, "outsideFolderDialog")
+            if w.isVisible()
         ]
         return boxes[0] if boxes else None
 

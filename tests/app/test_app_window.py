@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 from PySide6.QtCore import QObject
-from PySide6.QtWidgets import QApplication, QLabel, QMessageBox
+from PySide6.QtWidgets import QLabel, QMessageBox
 from volucal.app import settings, tasks
 from volucal.app.dialogs import PreferencesDialog, versions
 from volucal.app.mainwindow import MainWindow
@@ -201,8 +201,7 @@ def test_a_failing_save_shows_the_message(qtbot, window, tmp_path):
     blocked = tmp_path / "file"
     blocked.write_text("x")
     assert not window.save_as(blocked / "project.h5")
-    dialogs = [w for w in QApplication.topLevelWidgets()
-               if isinstance(w, QMessageBox) and w.isVisible()]
+    dialogs = [w for w in window.findChildren(QMessageBox) if w.isVisible()]
     assert dialogs and "project.h5" in dialogs[0].text()
     dialogs[0].close()
 
