@@ -2108,12 +2108,13 @@ def _audit(
     later effects can move an Abbe offset's lever arm past the optics' reach), and each effect of
     one shape must have one size on every line that shows it (:class:`_Sizes`); an implausible
     one, else the one that varies most, is taken out and the rest refitted, until all agree.
-    Done at the end because while another effect was still missing, the lines it spoils could
-    not agree. A finer function is a basis whose every line sees a slice of its own: how well
-    each slice fits is the cross-validation's question. A low-order surface over two axes
-    couples the lines that cross it: fitted to something that is not a surface (a scale that
-    oscillates in time, read as depending on where each line lies), its fitted values fit some
-    lines at twice the size and others at none."""
+    Done after the forward steps because while another effect was still missing, the lines it
+    spoils could not agree; when it takes an effect out, :func:`close_loop` runs the forward
+    steps once more (:data:`AUDIT_ROUNDS`). A finer function is a basis whose every line sees a
+    slice of its own: how well each slice fits is the cross-validation's question. A low-order
+    surface over two axes couples the lines that cross it: fitted to something that is not a
+    surface (a scale that oscillates in time, read as depending on where each line lies), its
+    fitted values fit some lines at twice the size and others at none."""
     while kept:
         failures = []
         for index, effect in enumerate(current.effects):
