@@ -264,12 +264,22 @@ class ThermalDrift(Effect):
     reading (°C) and κ is an expansion in ppm/°C; otherwise g = 1 − exp(−t/τ) (τ chosen by the
     loop) and κ is the scale reached for t ≫ τ, in ppm. The identified 21 errors describe the
     machine at the first reading (DESIGN.md, "Time").
+
+    A file that logs the temperature only at its first and last reading says nothing of how it
+    went in between: read as a straight line in time, a structure that settles within a long
+    line (τ of 15 min in a 75 min line) changes size from run to run against it. With
+    ``first_order`` the temperature between a file's two logs follows a first-order response of
+    time constant τ (chosen by the loop), the way a structure settles after a change of heat
+    input: T(t) = T₀ + (T₁ − T₀)·(1 − exp(−(t − t₀)/τ))/(1 − exp(−(t₁ − t₀)/τ)). It meets both
+    logs exactly for every τ and tends to the straight line for τ ≫ t₁ − t₀; temperatures
+    logged at every reading are used as they are.
     """
 
     axis_name: str = "X"
     mode: str = "temperature"  # or "time"
     time_constant_s: float = 3600.0
     reference_mm: float = 0.0
+    first_order: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kind", "thermal_drift")
@@ -280,6 +290,11 @@ class ThermalDrift(Effect):
 
     @property
     def label(self) -> str:
+        if self.mode == "temperature" and self.first_order:
+            return (
+                f"thermal drift {self.axis_name} "
+                "(material temperature, first-order response between its logs)"
+            )
         if self.mode == "temperature":
             return f"thermal drift {self.axis_name} (material temperature)"
         return f"thermal drift {self.axis_name} (time)"
@@ -291,11 +306,13 @@ class ThermalDrift(Effect):
 
     @property
     def searched(self) -> int:
-        return 1 if self.mode == "time" else 0
+        return 1 if self.mode == "time" or self.first_order else 0
 
     def _driver(self, readings: Readings) -> FloatArray:
         if self.mode == "temperature":
             temp = readings.material_temp_c
+            if self.first_order:
+                temp = first_order_temperature(readings, self.time_constant_s)
             first = int(np.argmin(readings.time_s))
             return np.nan_to_num(temp - temp[first])
         return 1.0 - np.exp(-readings.time_s / self.time_constant_s)
@@ -308,11 +325,15 @@ class ThermalDrift(Effect):
 
     def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
         if self.mode == "temperature":
-            return {
+            out: dict[str, object] = {
                 "mode": "temperature",
                 "expansion_ppm_per_c": float(values[0]),
                 "expansion_std_ppm_per_c": _std(covariance),
             }
+            if self.first_order:
+                out["between_logs"] = "first order"
+                out["time_constant_s"] = self.time_constant_s
+            return out
         return {
             "mode": "time",
             "scale_ppm": float(values[0]),
@@ -331,7 +352,8 @@ class ThermalDrift(Effect):
                     f"an expansion of {values[0]:.4g} ppm/°C is outside [{low:g}, {high:g}] "
                     "ppm/°C of machine materials"
                 )
-            return None
+            if not self.first_order:
+                return None
         low, high = limits.time_constant_s
         if not low <= self.time_constant_s <= high:
             return (
@@ -346,6 +368,23 @@ class ThermalDrift(Effect):
         # The model describes the machine at the session's first reading: compensation uses
         # the 21 errors there, and the drift is reported, not compensated.
         return np.zeros_like(np.atleast_2d(positions_mm), dtype=float)
+
+
+def first_order_temperature(readings: Readings, time_constant_s: float) -> FloatArray:
+    """The material temperature of every reading, where a file logs it only at its two ends
+    read as a first-order response of time constant ``time_constant_s`` between them (see
+    :class:`ThermalDrift`); the logged or interpolated temperature elsewhere."""
+    temp = np.array(readings.material_temp_c, dtype=float)
+    ends = np.isfinite(readings.material_ends_c).all(axis=1)
+    if not np.any(ends):
+        return temp
+    (t0, t1), (c0, c1) = readings.material_ends_s[ends].T, readings.material_ends_c[ends].T
+    elapsed = np.clip(readings.time_s[ends] - t0, 0.0, None)
+    span = np.maximum(t1 - t0, 1e-9)
+    # (1 − e^(−Δt/τ)) / (1 − e^(−span/τ)), written with expm1 to stay exact for τ ≫ span
+    fraction = np.expm1(-elapsed / time_constant_s) / np.expm1(-span / time_constant_s)
+    temp[ends] = c0 + (c1 - c0) * fraction
+    return temp
 
 
 @dataclass(frozen=True, eq=False)

@@ -9,7 +9,7 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import NDArray
 
-from .measurement import Line, Measurement
+from .measurement import Line, LineData, Measurement
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -27,7 +27,11 @@ class Readings:
     position_mm : NC position of the target; target_mm : distance from the line start.
     approach : (n, 3) sign of the last motion of each axis (+1 from below, −1 from above).
     time_s : seconds since the session's first reading; material_temp_c : per reading (NaN if
-    not logged). value : the reading (µm or µrad); sigma : its repeatability (same unit).
+    not logged). material_ends_s, material_ends_c : (n, 2) session times of the file's first and
+    last reading and the material temperatures logged there, where the file logs the temperature
+    only at its two ends (material_temp_c is then interpolated linearly between them); NaN where
+    it logs one per reading or none. value : the reading (µm or µrad); sigma : its
+    repeatability (same unit).
     projection : (n, 3) beam direction (linear), deviation direction (straightness) or rotation
     axis (angular). reflector_mm : (n, 3) optics offset used for that line.
     """
@@ -41,6 +45,8 @@ class Readings:
     approach: FloatArray
     time_s: FloatArray
     material_temp_c: FloatArray
+    material_ends_s: FloatArray
+    material_ends_c: FloatArray
     value: FloatArray
     sigma: FloatArray
     quantity: IntArray
@@ -71,6 +77,8 @@ _ARRAY_FIELDS = (
     "approach",
     "time_s",
     "material_temp_c",
+    "material_ends_s",
+    "material_ends_c",
     "value",
     "sigma",
     "quantity",
@@ -101,6 +109,32 @@ def repeatability(line: Line) -> float:
     return max(float(np.sqrt(squares / dof)), SIGMA_FLOOR)
 
 
+#: Per-reading temperatures within this of a straight line in time (°C) were interpolated
+#: between the file's two logs, not logged at every reading.
+STRAIGHT_LINE_C = 1e-9
+
+
+def _logged_ends(
+    data: LineData, times: FloatArray, material: FloatArray
+) -> tuple[FloatArray, FloatArray] | None:
+    """The times (s from the file's start) and temperatures of a file's two material logs, when
+    its per-reading temperatures are the straight line between them (as a file that logs the
+    environment at its start and end is read); None when they were logged at every reading."""
+    sensors = np.asarray(data.environment.material_temp_c, dtype=float)
+    if sensors.size == 0 or times.size < 2 or not np.all(np.isfinite(material)):
+        return None
+    ends_c = sensors.reshape(-1, 2).mean(axis=0)
+    slope, offset = np.polyfit(times, material, 1)
+    straight = np.max(np.abs(offset + slope * times - material)) <= STRAIGHT_LINE_C
+    if not straight or abs(ends_c[1] - ends_c[0]) <= STRAIGHT_LINE_C or slope == 0.0:
+        return None
+    ends_s = (ends_c - offset) / slope
+    span = float(np.ptp(times))
+    if ends_s[0] > times.min() + 1e-6 * span or ends_s[1] < times.max() - 1e-6 * span:
+        return None
+    return ends_s, ends_c
+
+
 def flatten(measurement: Measurement, default_sigma: float = 0.5) -> Readings:
     """All readings of a measurement, with repeatability-based sigmas."""
     origin = measurement.session_start
@@ -121,13 +155,20 @@ def flatten(measurement: Measurement, default_sigma: float = 0.5) -> Readings:
         if not np.isfinite(sigma):
             sigma = default_sigma
         material = np.full(n, np.nan)
+        ends_s = np.full((n, 2), np.nan)
+        ends_c = np.full((n, 2), np.nan)
         if d.material_temp_c is not None:
             material = np.asarray(d.material_temp_c, float)[run, target]
+            ends = _logged_ends(d, d.times_s[run, target], material)
+            if ends is not None:
+                ends_s[:], ends_c[:] = ends[0] + d.start_time - origin, ends[1]
         elif d.environment.material_temp_c:
             start, end = d.environment.material_temp_c[0]
-            span = float(np.nanmax(d.times_s) - np.nanmin(d.times_s)) or 1.0
-            fraction = (d.times_s[run, target] - np.nanmin(d.times_s)) / span
+            first, last = float(np.nanmin(d.times_s)), float(np.nanmax(d.times_s))
+            fraction = (d.times_s[run, target] - first) / ((last - first) or 1.0)
             material = start + (end - start) * fraction
+            ends_s[:] = (d.start_time + first - origin, d.start_time + last - origin)
+            ends_c[:] = (start, end)
         if spec.quantity == "linear":
             projection = direction
         else:
@@ -141,6 +182,8 @@ def flatten(measurement: Measurement, default_sigma: float = 0.5) -> Readings:
         parts["approach"].append(approach)
         parts["time_s"].append(d.start_time + d.times_s[run, target] - origin)
         parts["material_temp_c"].append(material)
+        parts["material_ends_s"].append(ends_s)
+        parts["material_ends_c"].append(ends_c)
         parts["value"].append(d.deviations[run, target])
         parts["sigma"].append(np.full(n, sigma))
         parts["quantity"].append(np.full(n, QUANTITY_CODE[spec.quantity]))

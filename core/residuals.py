@@ -869,33 +869,61 @@ def _thermal_candidates(
     diagnosis: _Diagnosis, axis: str, ref: float, bounds: tuple[float, float]
 ) -> None:
     """A drift of the axis' scale driven by time (τ estimated) and, where the files log a
-    changing material temperature, one driven by that temperature: both are candidates."""
+    changing material temperature, one driven by that temperature: both are candidates. Where
+    files log the temperature only at their two ends, a third reads it between them as a
+    first-order response (τ estimated, :class:`ThermalDrift`)."""
     readings = diagnosis.readings
     temp = readings.material_temp_c
-    if np.all(np.isfinite(temp)) and np.ptp(temp) > 0.05:
+    logged = bool(np.all(np.isfinite(temp)) and np.ptp(temp) > 0.05)
+    if logged:
         diagnosis.add(ThermalDrift(axis, "temperature", reference_mm=ref))
     duration = float(np.ptp(readings.time_s))
     if duration <= 0:
         return
     # τ well beyond the session makes 1 − exp(−t/τ) a straight line: nothing to tell τ by
-    low, high = bounds[0], min(bounds[1], 20.0 * duration)
+    _search_time_constant(
+        diagnosis,
+        lambda tau: ThermalDrift(axis, "time", tau, ref),
+        (bounds[0], min(bounds[1], 20.0 * duration)),
+        f"all lines along {axis}",
+    )
+    ends_s, ends_c = readings.material_ends_s, readings.material_ends_c
+    changing = np.isfinite(ends_c).all(axis=1) & (np.abs(ends_c[:, 1] - ends_c[:, 0]) > 0.01)
+    if logged and np.any(changing):
+        # τ well beyond the longest file makes the response a straight line between the logs
+        longest = float(np.max(ends_s[changing, 1] - ends_s[changing, 0]))
+        _search_time_constant(
+            diagnosis,
+            lambda tau: ThermalDrift(axis, "temperature", tau, ref, first_order=True),
+            (bounds[0], min(bounds[1], 20.0 * longest)),
+            f"all lines along {axis}, temperature between the logs",
+        )
+
+
+def _search_time_constant(
+    diagnosis: _Diagnosis,
+    make: Callable[[float], ThermalDrift],
+    bounds: tuple[float, float],
+    where: str,
+) -> None:
+    """Add ``make(τ)`` at the τ within ``bounds`` (s) that removes most of what the model
+    leaves: a grid over log τ, refined where the best already stands out."""
+    low, high = bounds
     if high <= low:
         return
 
     def f_of(log_tau: float) -> float:
-        effect = ThermalDrift(axis, "time", float(np.exp(log_tau)), ref)
-        return diagnosis.tester.test(effect.design(readings, diagnosis.model))[0]
+        effect = make(float(np.exp(log_tau)))
+        return diagnosis.tester.test(effect.design(diagnosis.readings, diagnosis.model))[0]
 
     grid = np.linspace(np.log(low), np.log(high), 10)
     values = np.array([f_of(g) for g in grid])
     best = int(np.argmax(values))
     # independent τ over the range: about one per factor e
     trials = max(1, int(np.ceil(np.log(high / low))))
-    guess = ThermalDrift(axis, "time", float(np.exp(grid[best])), ref)
+    guess = make(float(np.exp(grid[best])))
     if not _worth_refining(diagnosis, guess, trials):
-        diagnosis.add(
-            guess, trials, f"all lines along {axis}, τ = {guess.time_constant_s / 60:.3g} min"
-        )
+        diagnosis.add(guess, trials, f"{where}, τ = {guess.time_constant_s / 60:.3g} min")
         return
     from scipy.optimize import minimize_scalar
 
@@ -906,11 +934,8 @@ def _thermal_candidates(
         options={"xatol": 1e-3},
     )
     log_tau = float(refined.x) if -refined.fun >= values[best] else float(grid[best])
-    diagnosis.add(
-        ThermalDrift(axis, "time", float(np.exp(log_tau)), ref),
-        trials,
-        f"all lines along {axis}, τ = {np.exp(log_tau) / 60:.3g} min",
-    )
+    tau = float(np.exp(log_tau))
+    diagnosis.add(make(tau), trials, f"{where}, τ = {tau / 60:.3g} min")
 
 
 #: Widths (1 σ, mm) of the local-defect scan; the best is then refined continuously.
