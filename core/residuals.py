@@ -599,7 +599,7 @@ def diagnose(
     warnings: list[str] = []
     excluded_kind_axis = {(k, a) for k, a, _ in exclude}
     moving = _moving_axes(readings)
-    steps = _target_steps(readings)
+    finest = _finest_steps(readings)
     for axis in AXES:
         low, high = machine.stroke(axis)
         ref = machine.reference(axis)
@@ -609,10 +609,9 @@ def diagnose(
         if moving[axis]:
             order = 1 if ("reversal", axis) in excluded_kind_axis else 0
             diagnosis.add(Reversal(axis, order, (low, high)))
-        typical, finest = steps[axis]
-        warnings += _cyclic_candidates(diagnosis, axis, ref, finest, high - low)
+        warnings += _cyclic_candidates(diagnosis, axis, ref, finest[axis], high - low)
         _thermal_candidates(diagnosis, axis, ref, options.time_constants_s)
-        _search_local(diagnosis, axis, typical)
+        _search_local(diagnosis, axis)
     for direction in AXES:
         for i, along in enumerate(AXES):
             for across in AXES[i + 1 :]:
@@ -646,11 +645,11 @@ def _corrected(log10_p: float, trials: int) -> float:
     return min(0.0, log10_p + float(np.log10(max(trials, 1))))
 
 
-def _target_steps(readings: Readings) -> dict[str, tuple[float, float]]:
-    """Per axis, the typical and the finest spacing of the targets along it (mm): the median of
-    the median steps of the lines that move along it, each projected on the axis, and the least
-    of those of the lines that also read a displacement along it (linear lines: what sees a
-    cycle of the axis; a diagonal's targets every 10.6 mm are 7.5 mm apart along each axis)."""
+def _finest_steps(readings: Readings) -> dict[str, float]:
+    """Per axis, the finest spacing of the targets along it (mm): the least median step, projected
+    on the axis, of the linear lines that move along it (what sees a cycle of the axis; a
+    diagonal's targets every 10.6 mm are 7.5 mm apart along each axis), or of any line that moves
+    along it where no linear line does; NaN where none does."""
     out = {}
     for axis in AXES:
         k = AXIS_INDEX[axis]
@@ -662,10 +661,7 @@ def _target_steps(readings: Readings) -> dict[str, tuple[float, float]]:
             steps.append(float(np.median(np.diff(line.data.targets_mm))) * share)
             if line.spec.quantity == "linear":
                 seeing.append(steps[-1])
-        if not steps:
-            out[axis] = (np.nan, np.nan)
-            continue
-        out[axis] = (float(np.median(steps)), float(np.min(seeing or steps)))
+        out[axis] = float(np.min(seeing or steps)) if steps else float("nan")
     return out
 
 
@@ -942,17 +938,19 @@ def _search_time_constant(
 LOCAL_WIDTHS_MM = (3.0, 6.0, 12.0, 24.0, 40.0)
 
 
-def _search_local(diagnosis: _Diagnosis, axis: str, step: float) -> None:
+def _search_local(diagnosis: _Diagnosis, axis: str) -> None:
     """A scan of Gaussian bumps along an axis, in each direction, over widths of 3–40 mm (1 σ);
     at the best place the bump of free profile (five splines over ± 3 σ, :class:`LocalDefect`)
     is refined continuously against what the model cannot absorb. A bump narrower than the
-    targets' spacing (``step``) would be one target's value, not a shape of the guideway: widths
-    start at the spacing, and a free profile spans at least three spacings each side."""
-    narrowest = max(2.0, step if np.isfinite(step) else 2.0)
+    spacing of the targets that see it (:func:`_bump_spacing`) would be one target's value, not
+    a shape of the guideway: widths start at that spacing, and a free profile spans at least
+    three spacings each side."""
     tester = diagnosis.tester
     low, high = diagnosis.model.machine.stroke(axis)
     k = AXIS_INDEX[axis]
     for direction in AXES:
+        step = _bump_spacing(diagnosis.readings, axis, direction)
+        narrowest = max(2.0, step if np.isfinite(step) else 2.0)
         positions, _, weight = tester.target_sums(AXIS_INDEX[direction])
         seen = weight > 0
         if not np.any(seen):
@@ -983,6 +981,25 @@ def _search_local(diagnosis: _Diagnosis, axis: str, step: float) -> None:
             trials,
             f"{axis} at {center:.0f} mm, ± {width:.3g} mm, in {direction}",
         )
+
+
+def _bump_spacing(readings: Readings, axis: str, direction: str) -> float:
+    """The finest spacing (mm, along ``axis``) of the lines that read a displacement along
+    ``direction`` while moving along ``axis``: the median step of each, projected on the axis. A
+    bump of EZZ as narrow as z_linear's targets every 4 mm is a shape that line resolves, though
+    the diagonals see it every 15 mm; NaN where no line reads that displacement."""
+    k, j = AXIS_INDEX[axis], AXIS_INDEX[direction]
+    steps = []
+    for line in readings.lines:
+        spec = line.spec
+        share = abs(spec.direction[k])
+        if share <= 1e-6 or spec.quantity == "angular" or len(line.data.targets_mm) < 2:
+            continue
+        seen = spec.direction if spec.quantity == "linear" else spec.sensitive
+        if seen is None or abs(seen[j]) <= 1e-6:
+            continue
+        steps.append(float(np.median(np.diff(line.data.targets_mm))) * share)
+    return min(steps) if steps else float("nan")
 
 
 #: The half-span of a free-profile bump, in the 1 σ widths of the Gaussian that found it.

@@ -19,6 +19,8 @@ read the method), for behaviours its suite showed missing:
   unless a logged material temperature drives it, even one the files log only at their two
   ends while the structure settles within the line; a drift a cosine error took is kept once the
   final audit takes the cosine out;
+- a bump narrower than the spacing of most lines is found where the line that sees it best
+  resolves it, not elsewhere with a finer function beside it;
 - a right effect is not refused for a change of size between runs that the 21 errors absorb
   almost whole, or that a reversal the model misfits brings between the two directions: a drift
   beside a reversal that grows along the stroke, an Abbe offset not taken by a surface;
@@ -247,6 +249,23 @@ def test_a_bump_a_finer_function_follows_as_well_is_kept_as_a_bump() -> None:
     outcome = run_blind(4043)
     assert outcome.kept == outcome.expected == {("abbe_offset", "z_linear"), ("local", "Z in Y")}
     assert outcome.function_error["EYZ"] < 0.35
+
+
+def test_a_bump_the_linear_line_resolves_is_found_at_its_place() -> None:
+    # demo plan: a 3.6 µm bump of EZZ at 294 mm, 20 mm wide (FWHM). z_linear's targets are 3.5
+    # mm apart, most lines' 15 mm along Z: scanned no narrower than the typical 15 mm, the bump
+    # was kept at 237 mm with a finer EZZ beside it. The narrowest width scanned is now the
+    # spacing of the lines that read the bump's direction
+    report, truth = _loop(8054)
+    (true_bump,) = truth["effects"]
+    (bump,) = report["effects"]
+    assert (bump["kind"], bump["axis"], bump["parameters"]["direction"]) == ("local", "Z", "Z")
+    assert bump["parameters"]["center_mm"] == pytest.approx(
+        true_bump["parameters"]["centre_mm"], abs=5.0
+    )
+    amplitude, std = bump["parameters"]["amplitude_um"], bump["parameters"]["amplitude_std_um"]
+    assert abs(amplitude - true_bump["parameters"]["amplitude_um"]) < max(3 * std, 0.35)
+    assert not report["unexplained"]
 
 
 def test_a_drift_beside_a_reversal_whose_size_changes_along_the_stroke_is_kept() -> None:
