@@ -356,14 +356,15 @@ def summary_table(result: Mapping[str, Any]) -> str:
         )
         lines.append(f"volumetric error of the identified machine (µm, 25 mm grid): {cells}")
     lines.append("")
-    lines.append("closed loop                                    RMS µm         CV RMS µm   kept")
-    lines.append("                                            before  after   before  after")
-    for step in result["loop"]:
-        effect = step["effect"]
-        label = effect.get("label", effect["kind"])[:42]
+    labels = [step["effect"].get("label", step["effect"]["kind"]) for step in result["loop"]]
+    width = max([42, *map(len, labels)])  # the label column: every label whole
+    pad = " " * (width - 42)
+    lines.append(f"{'closed loop':<{width + 5}}RMS µm         CV RMS µm   kept")
+    lines.append(f"{pad}                                            before  after   before  after")
+    for step, label in zip(result["loop"], labels, strict=True):
         kept = "yes" if step["kept"] else f"no: {step['verdict']}"  # why not, in a few words
         lines.append(
-            f"{step['step']:>2} {label:<42} "
+            f"{step['step']:>2} {label:<{width}} "
             f"{step['rms_um']['before']:6.3f} {step['rms_um']['after']:6.3f}"
             f"   {step['cv_rms_um']['before']:6.3f} {step['cv_rms_um']['after']:6.3f}"
             f"   {kept}"
@@ -371,7 +372,7 @@ def summary_table(result: Mapping[str, Any]) -> str:
     rms = result["residual_rms_um"]
     cv = result["cv_rms_um"]
     lines.append(
-        f"   {'whole loop':<42} {rms['before_loop']:6.3f} {rms['after_loop']:6.3f}"
+        f"   {'whole loop':<{width}} {rms['before_loop']:6.3f} {rms['after_loop']:6.3f}"
         f"   {cv['before_loop']:6.3f} {cv['after_loop']:6.3f}   ({cv['method']})"
     )
     judged = cv.get("all_lines")
@@ -380,7 +381,7 @@ def summary_table(result: Mapping[str, Any]) -> str:
         cv["after_loop"],
     ):
         lines.append(
-            f"   {'every line, angular at σ exchange':<42} {'':6} {'':6}"
+            f"   {'every line, angular at σ exchange':<{width}} {'':6} {'':6}"
             f"   {judged['before_loop']:6.3f} {judged['after_loop']:6.3f}"
         )
     if result["effects"]:

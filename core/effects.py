@@ -291,10 +291,7 @@ class ThermalDrift(Effect):
     @property
     def label(self) -> str:
         if self.mode == "temperature" and self.first_order:
-            return (
-                f"thermal drift {self.axis_name} "
-                "(material temperature, first-order response between its logs)"
-            )
+            return f"thermal drift {self.axis_name} (material temperature, first order)"
         if self.mode == "temperature":
             return f"thermal drift {self.axis_name} (material temperature)"
         return f"thermal drift {self.axis_name} (time)"

@@ -214,9 +214,7 @@ def test_a_drift_that_settles_between_two_temperature_logs_is_kept_at_its_time_c
     report, truth = _loop(8028)
     (true_drift,) = truth["effects"]
     (drift,) = report["effects"]
-    assert drift["label"] == (
-        "thermal drift X (material temperature, first-order response between its logs)"
-    )
+    assert drift["label"] == "thermal drift X (material temperature, first order)"
     found, true = drift["parameters"], true_drift["parameters"]
     assert found["between_logs"] == "first order"
     # within 3 stated σ (0.35 ppm/°C here) of the truth's 11.26 ppm/K
