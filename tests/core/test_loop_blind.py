@@ -228,15 +228,21 @@ def test_a_drift_a_cosine_error_took_is_kept_once_the_audit_takes_the_cosine_out
     # demo plan: X drifting, and cosine errors on x_linear and body_pmp. A cosine of x_linear
     # took the drift's place first; with the other effects in, it grew past what a beam can be
     # misaligned by and the final audit took it out, leaving the drift's structure unexplained
-    # on seven lines. The forward steps now run again after the audit
+    # on seven lines. The forward steps now run again after the audit. Since bumps are scanned
+    # down to the finest line's spacing (more candidates share the step's false-alarm budget),
+    # the drift wins the first step outright; either way it is kept, and the cosine is not
     report, truth = _loop(7010)
     kinds = {(e["kind"], e["axis"]) for e in report["effects"]}
     assert ("thermal_drift", "X") in kinds
     assert kinds <= {(e["kind"], e.get("axis")) for e in truth["effects"]}
+    kept = [e["label"] for e in report["effects"]]
+    assert "cosine misalignment of line x_linear" not in kept
     audited = [s for s in report["loop"] if s["stage"] == "audit"]
-    assert [s["effect"]["label"] for s in audited] == ["cosine misalignment of line x_linear"]
     drift = [s for s in report["loop"] if s["kept"] and s["effect"]["kind"] == "thermal_drift"]
-    assert drift and drift[0]["step"] > audited[0]["step"]  # found in the second round
+    assert drift
+    if audited:  # a drift the audit freed is found in the round after it
+        assert drift[-1]["step"] > audited[0]["step"]
+    assert not report["unexplained"]
 
 
 def test_a_bump_a_finer_function_follows_as_well_is_kept_as_a_bump() -> None:
