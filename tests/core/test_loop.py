@@ -349,3 +349,31 @@ def test_a_cycle_shorter_than_twice_the_spacing_needs_irregular_targets(jitter_m
             pytest.approx(18.0, rel=0.05),
             pytest.approx(36.0, rel=0.05),
         ]
+
+
+def test_the_console_table_prints_every_label_whole_in_aligned_columns() -> None:
+    label = "cross-axis EX over Y×Z (order 4, with lever-arm terms)"  # 55 characters
+    rms = {"before": 0.5, "after": 0.2}
+    result = {
+        "lines": 3,
+        "readings": 90,
+        "identifiability": {"rank": 1, "unknowns": 1, "unidentifiable": []},
+        "loop": [
+            {"step": 1, "effect": {"kind": "reversal", "label": "reversal X"}, "kept": True,
+             "verdict": "kept", "rms_um": rms, "cv_rms_um": rms},
+            {"step": 1, "effect": {"kind": "cross_axis", "label": label}, "kept": False,
+             "verdict": "below margin", "rms_um": rms, "cv_rms_um": rms},
+        ],
+        "residual_rms_um": {"before_loop": 0.5, "after_loop": 0.2},
+        "cv_rms_um": {"before_loop": 0.5, "after_loop": 0.2, "method": "held-out lines"},
+        "effects": [],
+    }
+    rows = summary_table(result).splitlines()
+    (header,) = [r for r in rows if r.startswith("closed loop")]
+    (short,) = [r for r in rows if "reversal X" in r]
+    (long,) = [r for r in rows if label in r]
+    (total,) = [r for r in rows if "whole loop" in r]
+    # the numbers of every row start in the same column, under the header's
+    column = long.index(" 0.500")
+    assert short.index(" 0.500") == total.index(" 0.500") == column
+    assert header.index("RMS µm") <= column + 7 < header.index("CV RMS µm")
