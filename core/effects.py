@@ -349,16 +349,19 @@ class ThermalDrift(Effect):
                     f"an expansion of {values[0]:.4g} ppm/°C is outside [{low:g}, {high:g}] "
                     "ppm/°C of machine materials"
                 )
-            if not self.first_order:
-                return None
+            return self._implausible_time_constant(limits) if self.first_order else None
+        why = self._implausible_time_constant(limits)
+        if why is None and abs(values[0]) > limits.thermal_scale_ppm:
+            why = f"a drift of {values[0]:.4g} ppm is beyond {limits.thermal_scale_ppm:g} ppm"
+        return why
+
+    def _implausible_time_constant(self, limits) -> str | None:  # type: ignore[no-untyped-def]
         low, high = limits.time_constant_s
         if not low <= self.time_constant_s <= high:
             return (
                 f"a time constant of {self.time_constant_s:.4g} s is outside the "
                 f"[{low:g}, {high:g}] s a machine structure warms with"
             )
-        if abs(values[0]) > limits.thermal_scale_ppm:
-            return f"a drift of {values[0]:.4g} ppm is beyond {limits.thermal_scale_ppm:g} ppm"
         return None
 
     def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]

@@ -114,16 +114,22 @@ def repeatability(line: Line) -> float:
 STRAIGHT_LINE_C = 1e-9
 
 
+def _sensor_means(data: LineData) -> FloatArray | None:
+    """The material temperature a file logs at its start and at its end (°C): the mean of its
+    sensors, as the Renishaw reader interpolates between them; None where it logs none."""
+    sensors = np.asarray(data.environment.material_temp_c, dtype=float)
+    return sensors.reshape(-1, 2).mean(axis=0) if sensors.size else None
+
+
 def _logged_ends(
     data: LineData, times: FloatArray, material: FloatArray
 ) -> tuple[FloatArray, FloatArray] | None:
     """The times (s from the file's start) and temperatures of a file's two material logs, when
     its per-reading temperatures are the straight line between them (as a file that logs the
     environment at its start and end is read); None when they were logged at every reading."""
-    sensors = np.asarray(data.environment.material_temp_c, dtype=float)
-    if sensors.size == 0 or times.size < 2 or not np.all(np.isfinite(material)):
+    ends_c = _sensor_means(data)
+    if ends_c is None or times.size < 2 or not np.all(np.isfinite(material)):
         return None
-    ends_c = sensors.reshape(-1, 2).mean(axis=0)
     slope, offset = np.polyfit(times, material, 1)
     straight = np.max(np.abs(offset + slope * times - material)) <= STRAIGHT_LINE_C
     if not straight or abs(ends_c[1] - ends_c[0]) <= STRAIGHT_LINE_C or slope == 0.0:
@@ -162,8 +168,8 @@ def flatten(measurement: Measurement, default_sigma: float = 0.5) -> Readings:
             ends = _logged_ends(d, d.times_s[run, target], material)
             if ends is not None:
                 ends_s[:], ends_c[:] = ends[0] + d.start_time - origin, ends[1]
-        elif d.environment.material_temp_c:
-            start, end = d.environment.material_temp_c[0]
+        elif (means := _sensor_means(d)) is not None:
+            start, end = means
             first, last = float(np.nanmin(d.times_s)), float(np.nanmax(d.times_s))
             fraction = (d.times_s[run, target] - first) / ((last - first) or 1.0)
             material = start + (end - start) * fraction

@@ -69,7 +69,7 @@ from .identify import (
     residual_rms,
 )
 from .machine import AXES, AXIS_INDEX, Machine
-from .measurement import Measurement
+from .measurement import LineSpec, Measurement
 from .progress import CancelToken, ProgressCallback, check, report
 from .readings import Readings, flatten
 
@@ -645,23 +645,28 @@ def _corrected(log10_p: float, trials: int) -> float:
     return min(0.0, log10_p + float(np.log10(max(trials, 1))))
 
 
+def _line_steps(readings: Readings, axis: str) -> list[tuple[LineSpec, float]]:
+    """Every line that moves along ``axis`` (two targets or more), with its median target step
+    projected on the axis (mm): a diagonal's targets every 10.6 mm are 7.5 mm apart along each
+    axis."""
+    k = AXIS_INDEX[axis]
+    out = []
+    for line in readings.lines:
+        share = abs(line.spec.direction[k])
+        if share > 1e-6 and len(line.data.targets_mm) >= 2:
+            out.append((line.spec, float(np.median(np.diff(line.data.targets_mm))) * share))
+    return out
+
+
 def _finest_steps(readings: Readings) -> dict[str, float]:
-    """Per axis, the finest spacing of the targets along it (mm): the least median step, projected
-    on the axis, of the linear lines that move along it (what sees a cycle of the axis; a
-    diagonal's targets every 10.6 mm are 7.5 mm apart along each axis), or of any line that moves
+    """Per axis, the finest spacing of the targets along it (mm, :func:`_line_steps`) of the
+    linear lines that move along it (what sees a cycle of the axis), or of any line that moves
     along it where no linear line does; NaN where none does."""
     out = {}
     for axis in AXES:
-        k = AXIS_INDEX[axis]
-        steps, seeing = [], []
-        for line in readings.lines:
-            share = abs(line.spec.direction[k])
-            if share <= 1e-6 or len(line.data.targets_mm) < 2:
-                continue
-            steps.append(float(np.median(np.diff(line.data.targets_mm))) * share)
-            if line.spec.quantity == "linear":
-                seeing.append(steps[-1])
-        out[axis] = float(np.min(seeing or steps)) if steps else float("nan")
+        steps = _line_steps(readings, axis)
+        seeing = [step for spec, step in steps if spec.quantity == "linear"]
+        out[axis] = min(seeing or [step for _, step in steps], default=float("nan"))
     return out
 
 
@@ -984,22 +989,18 @@ def _search_local(diagnosis: _Diagnosis, axis: str) -> None:
 
 
 def _bump_spacing(readings: Readings, axis: str, direction: str) -> float:
-    """The finest spacing (mm, along ``axis``) of the lines that read a displacement along
-    ``direction`` while moving along ``axis``: the median step of each, projected on the axis. A
-    bump of EZZ as narrow as z_linear's targets every 4 mm is a shape that line resolves, though
-    the diagonals see it every 15 mm; NaN where no line reads that displacement."""
-    k, j = AXIS_INDEX[axis], AXIS_INDEX[direction]
-    steps = []
-    for line in readings.lines:
-        spec = line.spec
-        share = abs(spec.direction[k])
-        if share <= 1e-6 or spec.quantity == "angular" or len(line.data.targets_mm) < 2:
-            continue
-        seen = spec.direction if spec.quantity == "linear" else spec.sensitive
-        if seen is None or abs(seen[j]) <= 1e-6:
-            continue
-        steps.append(float(np.median(np.diff(line.data.targets_mm))) * share)
-    return min(steps) if steps else float("nan")
+    """The finest spacing (mm, along ``axis``, :func:`_line_steps`) of the lines that read a
+    displacement along ``direction`` while moving along ``axis``. A bump of EZZ as narrow as
+    z_linear's targets every 4 mm is a shape that line resolves, though the diagonals see it
+    every 15 mm; NaN where no line reads that displacement."""
+    j = AXIS_INDEX[direction]
+    steps = [
+        step
+        for spec, step in _line_steps(readings, axis)
+        if spec.quantity != "angular"
+        and abs((spec.direction if spec.quantity == "linear" else spec.sensitive)[j]) > 1e-6
+    ]
+    return min(steps, default=float("nan"))
 
 
 #: The half-span of a free-profile bump, in the 1 σ widths of the Gaussian that found it.
