@@ -99,6 +99,9 @@ class RigidProjector:
         design = np.vstack(blocks)
         scale = np.linalg.norm(design, axis=0)
         scale[scale == 0] = 1.0
+        self.bases = bases
+        self.design = design
+        self.scale = scale
         # Orthonormal basis of the column space from the Gram matrix's eigenvectors: much faster
         # than an SVD of the tall matrix when the BLAS threads compete for the cores.
         a = design / scale
@@ -117,3 +120,33 @@ class RigidProjector:
             residual = diffs[line.spec.name] - fitted[rows]
             out[line.spec.name] = float(np.max(np.abs(residual)))
         return out
+
+    def fit(self, diffs: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], dict[str, float],
+                                                          float]:
+        """The rigid-body model's least-squares fit of noise-free contributions (runs, targets):
+        each function's B-spline coefficients (µm; µrad for the angles: zero at the reference
+        position, evaluated by :meth:`function_values`), the three squareness errors (µrad) and
+        the residual's norm relative to the contribution's (0 when a rigid body produces it
+        exactly on these lines)."""
+        means = np.concatenate([diffs[line.spec.name].mean(axis=0) for line in self.lines])
+        # minimum norm on the directions the lines do not see (the gauges: a squareness against
+        # the straightness slopes, an angle no line reads), as the projection's rank does
+        coef, *_ = np.linalg.lstsq(self.design / self.scale, means, rcond=1e-6)
+        coef = coef / self.scale
+        residual = means - self.design @ coef
+        size = float(np.linalg.norm(means))
+        functions: dict[str, np.ndarray] = {}
+        start = 0
+        for axis in AXES:
+            count = self.bases[axis][2] + 3
+            for name in ("X", "Y", "Z", "A", "B", "C"):
+                functions[f"E{name}{axis}"] = coef[start:start + count]
+                start += count
+        squareness = dict(zip(("EC0Y", "EB0Z", "EA0Z"), coef[start:start + 3].tolist(),
+                              strict=True))
+        return functions, squareness, float(np.linalg.norm(residual)) / max(size, 1e-300)
+
+    def function_values(self, eid: str, coefficients: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """A function of :meth:`fit` at positions q (mm) along its axis."""
+        lo, hi, intervals, at_ref = self.bases[eid[2]]
+        return (bspline_basis(np.asarray(q, float), lo, hi, intervals) - at_ref) @ coefficients

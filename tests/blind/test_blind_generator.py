@@ -254,6 +254,38 @@ def test_rigid_projection_absorbs_a_rigid_machine_but_not_a_reversal() -> None:
     assert max(projector.residual_peaks(diffs).values()) == pytest.approx(1.0, abs=1e-6)
 
 
+def test_rigid_fit_recovers_the_functions_and_angles_of_a_rigid_machine() -> None:
+    # the demo plan sees every function; a straightness is known up to its slope, and of a
+    # squareness only the angle between its two axes (squareness plus both straightness slopes)
+    s = build_scenario(4, plan="resources/demo/plan.toml", category="clean")
+    projector = RigidProjector(s.plan, s.session.lines)
+    base = {line.spec.name: measure_line(s.machine, [], line) for line in s.session.lines}
+    functions, squareness, share = projector.fit(base)
+    assert share < 1e-3
+
+    def values(eid: str, fitted: bool) -> tuple[np.ndarray, np.ndarray]:
+        q = np.linspace(*s.machine.stroke_mm[eid[2]], 81)
+        if fitted:
+            return q, projector.function_values(eid, functions[eid], q)
+        return q, s.machine.functions[eid](q)
+
+    for eid in functions:
+        q, difference = values(eid, True)[0], values(eid, True)[1] - values(eid, False)[1]
+        if error_kind(eid) == "straightness":
+            difference -= np.polyval(np.polyfit(q, difference, 1), q)
+        assert np.sqrt(np.mean(difference**2)) < 0.01, eid
+    pairs = {"EC0Y": (("EXY", "EYX"), -1.0), "EB0Z": (("EXZ", "EZX"), 1.0),
+             "EA0Z": (("EYZ", "EZY"), -1.0)}
+    def angle(sid: str, fitted: bool) -> float:
+        straightness, sign = pairs[sid]
+        value = squareness[sid] if fitted else s.machine.squareness_urad[sid]
+        slopes = (np.polyfit(*values(eid, fitted), 1)[0] for eid in straightness)
+        return value + sign * 1e3 * sum(slopes)
+
+    for sid in pairs:
+        assert angle(sid, True) == pytest.approx(angle(sid, False), abs=0.01), sid
+
+
 def test_rigid_family_of_cross_axis_surfaces() -> None:
     grid = np.linspace(-1, 1, 21)
     u, v = np.meshgrid(grid, grid, indexing="ij")
