@@ -74,6 +74,12 @@ def _one(seed: int, generator: str = "independent") -> dict:
         "unexplained_where": outcome.unexplained_where,
         "one_line": sorted([*effect, how] for effect, how in outcome.one_line_handling.items()),
         "right_up_to_one_line": outcome.right_up_to_one_line_effects,
+        # kept effects of which a part reads as the 21 errors do on the plan (left to them)
+        "shared": [
+            [e["label"], *e["shared_with_errors"]["errors"]]
+            for e in outcome.effects_report
+            if "shared_with_errors" in e
+        ],
         "loop_s": outcome.seconds,
         "total_s": time.perf_counter() - started,
     }

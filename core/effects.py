@@ -433,6 +433,11 @@ class CrossAxis(Effect):
             for i in range(lowest, total - lowest + 1)
         ]
 
+    @property
+    def term_names(self) -> tuple[str, ...]:
+        """The shape functions' names in parameter order, e.g. "P1(Y)·P2(Z)"."""
+        return tuple(f"P{i}({self.along})·P{j}({self.across})" for i, j in self._terms())
+
     def _scaled(self, q: FloatArray, axis: str) -> FloatArray:
         assert self.machine is not None
         low, high = self.machine.stroke(axis)
@@ -472,7 +477,7 @@ class CrossAxis(Effect):
             "depends_on": [self.along, self.across],
             "order": self.order,
             "lever_terms": self.lever_terms,
-            "terms": [f"P{i}({self.along})·P{j}({self.across})" for i, j in self._terms()],
+            "terms": list(self.term_names),
             "coefficients_um": [float(v) for v in values],
             "coefficients_std_um": [_std(covariance, i) for i in range(len(values))],
             "peak_um": float(np.max(np.abs(surface))),

@@ -45,12 +45,14 @@ from .errors import (
 from .identify_blocks import ConstrainedSystem, Elimination, NullSpace, largest_leverage, line_schur
 from .identify_system import (
     RANK_TOLERANCE,
+    SHARE_NAMED,
     ColumnBlock,
     EffectTerm,
     Gauge,
     GeometricDesign,
     LinearSystem,
     Reduction,
+    SharedPart,
     build_system,
     column_scale,
     eliminate,
@@ -276,7 +278,9 @@ def separable_reduction(system: LinearSystem) -> Reduction | None:
     )
     pieces = []
     blocks = []
+    shared: list[SharedPart] = []
     start = rigid
+    carriers = _error_names(system, elimination.glob[errors])
     for block in effects:
         columns = np.arange(block.columns.start, block.columns.stop)
         local = columns - rigid
@@ -285,11 +289,44 @@ def separable_reduction(system: LinearSystem) -> Reduction | None:
         pieces.append((columns, kept))
         blocks.append(replace(block, columns=slice(start, start + kept.shape[1])))
         start += kept.shape[1]
+        for w in s_vectors[:, s_values <= SEPARABILITY].T:
+            # the errors' change that reproduces the direction's readings
+            along = projected[:, local] @ w
+            if float(along @ (along / values)) <= SHARED_SEEN:
+                continue  # not seen at all (or only by the lines' zeros and slopes)
+            change = np.abs(vectors @ (along / values)) * scale[elimination.glob[errors]]
+            shares = {
+                name: float(np.linalg.norm(change[positions]))
+                for name, positions in carriers.items()
+            }
+            largest = max(shares.values())
+            names = sorted(
+                (n for n, v in shares.items() if v >= SHARE_NAMED * largest),
+                key=lambda n: -shares[n],
+            )
+            shared.append(SharedPart(block.key, w, tuple(names)))
     matrix = np.zeros((system.size, start))
     matrix[:rigid, :rigid] = np.eye(rigid)
     for (columns, kept), block in zip(pieces, blocks, strict=True):
         matrix[columns, block.columns] = kept
-    return Reduction(matrix, tuple(blocks))
+    return Reduction(matrix, tuple(blocks), tuple(shared))
+
+
+#: A direction of an effect the 21 errors take up entirely is *shared* with them (and said so)
+#: when what they reproduce of it reaches this (column-scaled information); below, the plan does
+#: not see it at all.
+SHARED_SEEN = 1e-3
+
+
+def _error_names(system: LinearSystem, glob: IntArray) -> dict[str, IntArray]:
+    """Per error id, the positions in ``glob`` (global columns) of its columns."""
+    out = {}
+    for block in system.blocks:
+        if block.kind == "error":
+            inside = (glob >= block.columns.start) & (glob < block.columns.stop)
+            if np.any(inside):
+                out[block.key] = np.flatnonzero(inside)
+    return out
 
 
 @dataclass(frozen=True, eq=False)

@@ -292,6 +292,27 @@ class Reduction:
 
     matrix: FloatArray
     blocks: tuple[ColumnBlock, ...]
+    #: per effect, what of it a rigid body produces as well (left to the 21 errors)
+    shared: tuple[SharedPart, ...] = ()
+
+
+@dataclass(frozen=True, eq=False)
+class SharedPart:
+    """A direction of an effect's parameters that the plan sees but cannot tell from a change
+    of the 21 errors: the fit leaves it to the errors, which then carry it.
+
+    ``effect`` is the effect's label, ``direction`` the change of its parameters (unit norm in
+    the column-scaled coordinates), ``errors`` the errors whose change produces the same
+    readings, the largest change first (each at least :data:`SHARE_NAMED` of the largest)."""
+
+    effect: str
+    direction: FloatArray
+    errors: tuple[str, ...]
+
+
+#: An error is named as carrying an effect's shared part when its share of the change of the
+#: errors' parameters (µm, µrad) reaches this fraction of the largest error's.
+SHARE_NAMED = 0.1
 
 
 @dataclass(frozen=True, eq=False)

@@ -58,7 +58,7 @@ from .effects import (
     Reversal,
     ThermalDrift,
 )
-from .errors import AXIS_ERROR_IDS, ErrorModel
+from .errors import AXIS_ERROR_IDS, ERROR_INFO, SQUARENESS_IDS, ErrorModel
 from .identify import (
     BLOCK_MM,
     CrossValidation,
@@ -221,14 +221,16 @@ class LoopResult:
             strict=True,
         ):
             assert isinstance(effect, Effect)
-            out.append(
-                {
-                    "kind": effect.kind,
-                    "axis": effect.axis,
-                    "label": effect.label,
-                    "parameters": effect.parameters(values, cov),
-                }
-            )
+            entry: dict[str, object] = {
+                "kind": effect.kind,
+                "axis": effect.axis,
+                "label": effect.label,
+                "parameters": effect.parameters(values, cov),
+            }
+            terms, errors, _ = _shared(self.final, effect)
+            if errors:
+                entry["shared_with_errors"] = {"terms": list(terms), "errors": list(errors)}
+            out.append(entry)
         return out
 
     def _cv_report(self) -> dict[str, object]:
@@ -1779,6 +1781,8 @@ class _State:
     refused: dict[EffectKey, float] = field(default_factory=dict)
     #: kept surfaces a rival predicts as well
     ambiguous: dict[EffectKey, str] = field(default_factory=dict)
+    #: per kept surface: how the 21 errors' parameters move to a rival that fits as well
+    shape_doubt: dict[EffectKey, FloatArray] = field(default_factory=dict)
     #: per axis: a kept searched cycle's aliases
     aliased: dict[str, tuple[float, ...]] = field(default_factory=dict)
     number: int = 0
@@ -1844,9 +1848,16 @@ def _forward(
                 )
         if chosen is None:
             break
-        alike = _alike(chosen, tried_this_step, options.tie)
-        if alike is not None:
-            ambiguous[chosen.finding.effect.key] = alike
+        unsettled, state.shape_doubt[chosen.finding.effect.key] = _unsettled(
+            chosen, tried_this_step, options.tie
+        )
+        doubts = [
+            text
+            for text in (_alike(chosen, tried_this_step, options.tie), unsettled)
+            if text is not None
+        ]
+        if doubts:
+            ambiguous[chosen.finding.effect.key] = "; ".join(doubts)
         effect = chosen.finding.effect
         if chosen.finding.alias_mm:
             aliased[effect.axis] = chosen.finding.alias_mm  # type: ignore[index]
@@ -1924,10 +1935,75 @@ def close_loop(
         for e in kept
         if isinstance(e, Cyclic) and e.searched and e.axis in aliased
     ]
+    warnings += _shared_warnings(current)
     report(progress, 0.95, "looking for what is still unexplained")
     leftover = unexplained(current, cv, options.alpha)
+    current = _with_shape_doubt(
+        current, [state.shape_doubt[e.key] for e in kept if e.key in state.shape_doubt]
+    )
     report(progress, 1.0, "loop closed")
     return LoopResult(base, current, cv_base, cv, tuple(steps), tuple(leftover), tuple(warnings))
+
+
+def _with_shape_doubt(fit: Identification, deltas: Sequence[FloatArray]) -> Identification:
+    """``fit`` with the errors' covariance widened by half the outer product of each kept
+    surface's move to its rival (:func:`_unsettled`)."""
+    moves = [d for d in deltas if np.any(d)]
+    if not moves:
+        return fit
+    covariance = fit.covariance + sum(0.5 * np.outer(d, d) for d in moves)
+    return replace(fit, covariance=covariance)
+
+
+def _shared(fit: Identification, effect: Effect) -> tuple[tuple[str, ...], tuple[str, ...], int]:
+    """What of a kept effect reads on every line exactly as a change of the 21 errors (the fit
+    leaves it to them): its shape functions involved (for a surface, each whose column-scaled
+    weight in a shared direction reaches a tenth of that direction's largest; otherwise the
+    effect's label), the errors that carry it, largest first, and the number of independent
+    combinations shared; empty and 0 when nothing is."""
+    reduction = fit.system.reduction
+    parts = [p for p in reduction.shared if p.effect == effect.label] if reduction else []
+    if not parts:
+        return (), (), 0
+    errors = tuple(dict.fromkeys(e for part in parts for e in part.errors))
+    if not isinstance(effect, CrossAxis):
+        return (effect.label,), errors, len(parts)
+    weight = np.max([np.abs(p.direction) / np.abs(p.direction).max() for p in parts], axis=0)
+    terms = tuple(name for name, w in zip(effect.term_names, weight, strict=True) if w >= 0.1)
+    return terms, errors, len(parts)
+
+
+def _and(names: Sequence[str]) -> str:
+    """Names joined in words: A; A and B; A, B and C."""
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
+
+
+def _shared_warnings(fit: Identification) -> list[str]:
+    """A warning per kept effect of which a part reads on every line exactly as a change of the
+    21 errors: the fit leaves that part to them, so the errors reported carry it."""
+    out = []
+    for effect in fit.effects:
+        assert isinstance(effect, Effect)
+        terms, errors, count = _shared(fit, effect)
+        if not count:
+            continue
+        if not isinstance(effect, CrossAxis):
+            what = "a part of it reads"
+        elif count == 1 and len(terms) == 1:
+            what = f"its term {terms[0]} reads"
+        else:
+            named = _and(terms) if len(terms) <= 4 else f"{len(terms)} of its"
+            what = (
+                f"{count} combination{'s' if count > 1 else ''} of {named} terms "
+                f"{'read' if count > 1 else 'reads'}"
+            )
+        out.append(
+            f"{effect.label}: {what} on every line measured exactly as a change of "
+            f"{_and(errors)} does, so this plan cannot tell the two apart: the fit leaves it to "
+            "those errors, and their reported values carry it. Lines that read those errors "
+            "directly, or the same error at other offsets, would tell them apart"
+        )
+    return out
 
 
 def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> str | None:
@@ -1958,6 +2034,76 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> str | None:
                 "tell them apart"
             )
     return None
+
+
+#: A kept surface's shape is *unsettled* (and said so) when a rival surface of the same direction
+#: and pair that predicts the held-out data as well moves an error fitted beside it by more than
+#: this many of its stated standard uncertainties (RMS over its stroke).
+UNSETTLED_RATIO = 3.0
+
+
+def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | None, FloatArray]:
+    """What the kept surface's shape leaves open: its rivals of the same direction and pair
+    (another order, with or without lever-arm terms) that pass and predict the held-out data as
+    well (within ``tie``) are fits the plan cannot rank below it.
+
+    Returned: a warning when the 21 errors fitted beside the rival that moves them most differ
+    from the kept fit's by more than :data:`UNSETTLED_RATIO` stated standard uncertainties, and
+    that difference of the errors' parameters (zeros without a rival). The two fits are equally
+    good descriptions, so the errors' covariance gains half its outer product (the spread of an
+    even choice between them about the kept one): the bands then say what the plan settles."""
+    effect = chosen.finding.effect
+    delta = np.zeros_like(chosen.refit.model.parameters)
+    if not isinstance(effect, CrossAxis):
+        return None, delta
+    where = (effect.direction, {effect.along, effect.across})
+    worst: tuple[list[tuple[float, str, float]], _Trial] | None = None
+    for trial in trials:
+        rival = trial.finding.effect
+        if trial is chosen or not trial.ok or not isinstance(rival, CrossAxis):
+            continue
+        if (rival.direction, {rival.along, rival.across}) != where:
+            continue
+        if trial.score > chosen.score * (1.0 + tie):
+            continue
+        moved = sorted(_moved_errors(chosen.refit, trial.refit), reverse=True)
+        if moved and (worst is None or moved[0][0] > worst[0][0][0]):
+            worst = (moved, trial)
+    if worst is None:
+        return None, delta
+    moved, trial = worst
+    delta = trial.refit.model.parameters - chosen.refit.model.parameters
+    beyond = [m for m in moved if m[0] > UNSETTLED_RATIO]
+    if not beyond:
+        return None, delta
+    listed = ", ".join(
+        f"{eid} by {difference:.3g} {'µrad' if ERROR_INFO[eid].unit == 'urad' else 'µm'} RMS "
+        f"({ratio:.0f} times its standard uncertainty from the fit alone)"
+        for ratio, eid, difference in beyond[:3]
+    )
+    return (
+        f"{trial.finding.effect.label} predicts the held-out data as well as the kept "
+        f"{effect.label} (cross-validated RMS {trial.score:.4g} and {chosen.score:.4g}), and the "
+        f"errors fitted beside the two differ: {listed}. This plan does not settle the "
+        "surface's shape; the stated uncertainties of the errors include that difference"
+    ), delta
+
+
+def _moved_errors(fit: Identification, other: Identification) -> list[tuple[float, str, float]]:
+    """(ratio, id, difference) of every identified error between two fits: the RMS difference
+    over its stroke (µm or µrad) and its ratio to ``fit``'s standard uncertainty."""
+    out = []
+    for eid in fit.identifiability.identified_ids:
+        q, value, std = fit.band(eid)
+        if eid in SQUARENESS_IDS:
+            values = np.array([other.model.squareness_urad[eid]])
+        else:
+            values = other.model.functions[eid](q)
+        difference = float(np.sqrt(np.mean((value - values) ** 2)))
+        spread = float(np.sqrt(np.mean(std**2)))
+        if spread > 0:
+            out.append((difference / spread, eid, difference))
+    return out
 
 
 def _simplest_best(passing: list[_Trial], tie: float) -> _Trial | None:
