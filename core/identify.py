@@ -46,6 +46,7 @@ from .identify_blocks import ConstrainedSystem, Elimination, NullSpace, largest_
 from .identify_system import (
     RANK_TOLERANCE,
     SHARE_NAMED,
+    SHARED_SEEN,
     ColumnBlock,
     EffectTerm,
     Gauge,
@@ -188,7 +189,7 @@ class Identification:
     """The identified model and everything needed to judge it."""
 
     model: ErrorModel
-    covariance: FloatArray  # (P, P) over model.parameters (statistical part)
+    covariance: FloatArray  # (P, P) over model.parameters (statistical; a loop adds shape doubt)
     identifiability: Identifiability
     readings: Readings
     residual: FloatArray  # measured − predicted, per reading (µm or µrad)
@@ -281,7 +282,7 @@ def separable_reduction(system: LinearSystem) -> Reduction | None:
     shared: list[SharedPart] = []
     start = rigid
     carriers = _error_names(system, elimination.glob[errors])
-    for block in effects:
+    for position, block in enumerate(effects):
         columns = np.arange(block.columns.start, block.columns.stop)
         local = columns - rigid
         s_values, s_vectors = np.linalg.eigh(schur_all[np.ix_(local, local)])
@@ -294,7 +295,7 @@ def separable_reduction(system: LinearSystem) -> Reduction | None:
             along = projected[:, local] @ w
             if float(along @ (along / values)) <= SHARED_SEEN:
                 continue  # not seen at all (or only by the lines' zeros and slopes)
-            change = np.abs(vectors @ (along / values)) * scale[elimination.glob[errors]]
+            change = (vectors @ (along / values)) * scale[elimination.glob[errors]]
             shares = {
                 name: float(np.linalg.norm(change[positions]))
                 for name, positions in carriers.items()
@@ -304,18 +305,12 @@ def separable_reduction(system: LinearSystem) -> Reduction | None:
                 (n for n, v in shares.items() if v >= SHARE_NAMED * largest),
                 key=lambda n: -shares[n],
             )
-            shared.append(SharedPart(block.key, w, tuple(names)))
+            shared.append(SharedPart(position, w, tuple(names)))
     matrix = np.zeros((system.size, start))
     matrix[:rigid, :rigid] = np.eye(rigid)
     for (columns, kept), block in zip(pieces, blocks, strict=True):
         matrix[columns, block.columns] = kept
     return Reduction(matrix, tuple(blocks), tuple(shared))
-
-
-#: A direction of an effect the 21 errors take up entirely is *shared* with them (and said so)
-#: when what they reproduce of it reaches this (column-scaled information); below, the plan does
-#: not see it at all.
-SHARED_SEEN = 1e-3
 
 
 def _error_names(system: LinearSystem, glob: IntArray) -> dict[str, IntArray]:

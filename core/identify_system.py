@@ -301,18 +301,24 @@ class SharedPart:
     """A direction of an effect's parameters that the plan sees but cannot tell from a change
     of the 21 errors: the fit leaves it to the errors, which then carry it.
 
-    ``effect`` is the effect's label, ``direction`` the change of its parameters (unit norm in
-    the column-scaled coordinates), ``errors`` the errors whose change produces the same
-    readings, the largest change first (each at least :data:`SHARE_NAMED` of the largest)."""
+    ``effect`` is the effect's position among the system's effects, ``direction`` the change of
+    its parameters (unit norm in the column-scaled coordinates), ``errors`` the errors whose
+    change produces the same readings, the largest change first (coefficient norm, µm or µrad;
+    each at least :data:`SHARE_NAMED` of the largest)."""
 
-    effect: str
+    effect: int
     direction: FloatArray
     errors: tuple[str, ...]
 
 
-#: An error is named as carrying an effect's shared part when its share of the change of the
-#: errors' parameters (µm, µrad) reaches this fraction of the largest error's.
+#: An error is named as carrying an effect's shared part when its change (coefficient norm, µm
+#: or µrad) reaches this fraction of the largest error's; a surface's shape function is named
+#: when its column-scaled weight in the shared direction reaches this fraction of the largest.
 SHARE_NAMED = 0.1
+#: A direction of an effect the 21 errors take up entirely is *shared* with them (and said so)
+#: when what they reproduce of it reaches this (column-scaled information); below, the plan does
+#: not see it at all.
+SHARED_SEEN = 1e-3
 
 
 @dataclass(frozen=True, eq=False)

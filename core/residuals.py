@@ -68,6 +68,7 @@ from .identify import (
     identify,
     residual_rms,
 )
+from .identify_system import SHARE_NAMED, Gauge
 from .machine import AXES, AXIS_INDEX, Machine
 from .measurement import LineSpec, Measurement
 from .progress import CancelToken, ProgressCallback, check, report
@@ -207,6 +208,9 @@ class LoopResult:
     steps: tuple[Step, ...]
     unexplained: tuple[Unexplained, ...]
     warnings: tuple[str, ...]
+    #: per kept effect (as ``final.effects``): what of it the plan reads exactly as a change of
+    #: the 21 errors (:class:`Shared`)
+    shared: tuple[Shared, ...] = ()
 
     @property
     def kept(self) -> tuple[Effect, ...]:
@@ -214,10 +218,12 @@ class LoopResult:
 
     def effects_report(self) -> list[dict[str, object]]:
         out: list[dict[str, object]] = []
-        for effect, values, cov in zip(
+        shared = self.shared or (Shared(),) * len(self.final.effects)
+        for effect, values, cov, part in zip(
             self.final.effects,
             self.final.effect_parameters,
             self.final.effect_covariances,
+            shared,
             strict=True,
         ):
             assert isinstance(effect, Effect)
@@ -227,9 +233,11 @@ class LoopResult:
                 "label": effect.label,
                 "parameters": effect.parameters(values, cov),
             }
-            terms, errors, _ = _shared(self.final, effect)
-            if errors:
-                entry["shared_with_errors"] = {"terms": list(terms), "errors": list(errors)}
+            if part.count:
+                entry["shared_with_errors"] = {
+                    "terms": list(part.terms),
+                    "errors": list(part.errors),
+                }
             out.append(entry)
         return out
 
@@ -1780,7 +1788,7 @@ class _State:
     #: F statistic at which a candidate was last refused
     refused: dict[EffectKey, float] = field(default_factory=dict)
     #: kept surfaces a rival predicts as well
-    ambiguous: dict[EffectKey, str] = field(default_factory=dict)
+    ambiguous: dict[EffectKey, list[str]] = field(default_factory=dict)
     #: per kept surface: how the 21 errors' parameters move to a rival that fits as well
     shape_doubt: dict[EffectKey, FloatArray] = field(default_factory=dict)
     #: per axis: a kept searched cycle's aliases
@@ -1848,16 +1856,15 @@ def _forward(
                 )
         if chosen is None:
             break
-        unsettled, state.shape_doubt[chosen.finding.effect.key] = _unsettled(
-            chosen, tried_this_step, options.tie
-        )
-        doubts = [
+        key = chosen.finding.effect.key
+        unsettled, move = _unsettled(chosen, tried_this_step, options.tie)
+        state.shape_doubt[key] = move
+        # what the plan leaves open about this keep replaces what an earlier keep left open
+        ambiguous[key] = [
             text
             for text in (_alike(chosen, tried_this_step, options.tie), unsettled)
             if text is not None
         ]
-        if doubts:
-            ambiguous[chosen.finding.effect.key] = "; ".join(doubts)
         effect = chosen.finding.effect
         if chosen.finding.alias_mm:
             aliased[effect.axis] = chosen.finding.alias_mm  # type: ignore[index]
@@ -1926,7 +1933,7 @@ def close_loop(
     warnings += state.warnings
     ambiguous, aliased, steps = state.ambiguous, state.aliased, state.steps
     # said only of surfaces and cycles the final model holds
-    warnings += [ambiguous[e.key] for e in kept if e.key in ambiguous]
+    warnings += [text for e in kept for text in ambiguous.get(e.key, ())]
     warnings += [
         f"the cycle of {e.axis} kept at {e.period_mm:.4g} mm fits the readings about as well at "
         f"{_periods_text(aliased[e.axis])}: the targets along {e.axis} are too regular to tell "
@@ -1935,42 +1942,62 @@ def close_loop(
         for e in kept
         if isinstance(e, Cyclic) and e.searched and e.axis in aliased
     ]
-    warnings += _shared_warnings(current)
+    shared = tuple(_shared(current, index) for index in range(len(current.effects)))
+    warnings += _shared_warnings(current, shared)
     report(progress, 0.95, "looking for what is still unexplained")
     leftover = unexplained(current, cv, options.alpha)
     current = _with_shape_doubt(
         current, [state.shape_doubt[e.key] for e in kept if e.key in state.shape_doubt]
     )
     report(progress, 1.0, "loop closed")
-    return LoopResult(base, current, cv_base, cv, tuple(steps), tuple(leftover), tuple(warnings))
+    return LoopResult(
+        base, current, cv_base, cv, tuple(steps), tuple(leftover), tuple(warnings), shared
+    )
 
 
 def _with_shape_doubt(fit: Identification, deltas: Sequence[FloatArray]) -> Identification:
     """``fit`` with the errors' covariance widened by half the outer product of each kept
-    surface's move to its rival (:func:`_unsettled`)."""
+    surface's move to its rival (:func:`_unsettled`), in the model's parameters and in the
+    fit's normal inverse alike (a refined function's covariance is made from the latter)."""
     moves = [d for d in deltas if np.any(d)]
     if not moves:
         return fit
-    covariance = fit.covariance + sum(0.5 * np.outer(d, d) for d in moves)
-    return replace(fit, covariance=covariance)
+    widening = sum(0.5 * np.outer(d, d) for d in moves)
+    gauge = Gauge.for_model(fit.model).matrix  # orthonormal columns: parameters = gauge @ θ
+    size = gauge.shape[1]
+    normal_inverse = fit.normal_inverse.copy()
+    normal_inverse[:size, :size] += gauge.T @ widening @ gauge / max(fit.sigma_scale, 1e-300) ** 2
+    return replace(fit, covariance=fit.covariance + widening, normal_inverse=normal_inverse)
 
 
-def _shared(fit: Identification, effect: Effect) -> tuple[tuple[str, ...], tuple[str, ...], int]:
-    """What of a kept effect reads on every line exactly as a change of the 21 errors (the fit
-    leaves it to them): its shape functions involved (for a surface, each whose column-scaled
-    weight in a shared direction reaches a tenth of that direction's largest; otherwise the
-    effect's label), the errors that carry it, largest first, and the number of independent
-    combinations shared; empty and 0 when nothing is."""
+@dataclass(frozen=True)
+class Shared:
+    """What of a kept effect the plan reads exactly as a change of the 21 errors (the fit leaves
+    it to them): its shape functions involved (for a surface, each whose column-scaled weight
+    in a shared direction reaches :data:`SHARE_NAMED` of that direction's largest; otherwise
+    the effect's label), the identified errors that carry it, and the number of independent
+    combinations shared (0: nothing is)."""
+
+    terms: tuple[str, ...] = ()
+    errors: tuple[str, ...] = ()
+    count: int = 0
+
+
+def _shared(fit: Identification, index: int) -> Shared:
+    """:class:`Shared` of the fit's effect ``index``."""
     reduction = fit.system.reduction
-    parts = [p for p in reduction.shared if p.effect == effect.label] if reduction else []
-    if not parts:
-        return (), (), 0
-    errors = tuple(dict.fromkeys(e for part in parts for e in part.errors))
+    parts = [p for p in reduction.shared if p.effect == index] if reduction else []
+    identified = set(fit.identifiability.identified_ids)
+    errors = tuple(dict.fromkeys(e for p in parts for e in p.errors if e in identified))
+    if not errors:
+        return Shared()
+    effect = fit.effects[index]
     if not isinstance(effect, CrossAxis):
-        return (effect.label,), errors, len(parts)
+        return Shared((str(getattr(effect, "label", "")),), errors, len(parts))
     weight = np.max([np.abs(p.direction) / np.abs(p.direction).max() for p in parts], axis=0)
-    terms = tuple(name for name, w in zip(effect.term_names, weight, strict=True) if w >= 0.1)
-    return terms, errors, len(parts)
+    names = effect.term_names
+    terms = tuple(n for n, w in zip(names, weight, strict=True) if w >= SHARE_NAMED)
+    return Shared(terms, errors, len(parts))
 
 
 def _and(names: Sequence[str]) -> str:
@@ -1978,30 +2005,29 @@ def _and(names: Sequence[str]) -> str:
     return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
 
 
-def _shared_warnings(fit: Identification) -> list[str]:
+def _shared_warnings(fit: Identification, shared: Sequence[Shared]) -> list[str]:
     """A warning per kept effect of which a part reads on every line exactly as a change of the
     21 errors: the fit leaves that part to them, so the errors reported carry it."""
     out = []
-    for effect in fit.effects:
+    for effect, part in zip(fit.effects, shared, strict=True):
         assert isinstance(effect, Effect)
-        terms, errors, count = _shared(fit, effect)
-        if not count:
+        if not part.count:
             continue
+        terms = part.terms
         if not isinstance(effect, CrossAxis):
             what = "a part of it reads"
-        elif count == 1 and len(terms) == 1:
+        elif part.count == 1 and len(terms) == 1:
             what = f"its term {terms[0]} reads"
+        elif part.count == 1:
+            what = f"a combination of its terms {_and(terms)} reads"
         else:
-            named = _and(terms) if len(terms) <= 4 else f"{len(terms)} of its"
-            what = (
-                f"{count} combination{'s' if count > 1 else ''} of {named} terms "
-                f"{'read' if count > 1 else 'reads'}"
-            )
+            named = _and(terms) if len(terms) <= 4 else f"{len(terms)} of its terms"
+            what = f"{part.count} combinations of {named} read"
         out.append(
             f"{effect.label}: {what} on every line measured exactly as a change of "
-            f"{_and(errors)} does, so this plan cannot tell the two apart: the fit leaves it to "
-            "those errors, and their reported values carry it. Lines that read those errors "
-            "directly, or the same error at other offsets, would tell them apart"
+            f"{_and(part.errors)} does, so this plan cannot tell the two apart: the fit leaves "
+            "it to those errors, and their reported values carry it. Lines that read those "
+            "errors directly, or the same error at other offsets, would tell them apart"
         )
     return out
 
@@ -2077,14 +2103,16 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | 
     if not beyond:
         return None, delta
     listed = ", ".join(
-        f"{eid} by {difference:.3g} {'µrad' if ERROR_INFO[eid].unit == 'urad' else 'µm'} RMS "
-        f"({ratio:.0f} times its standard uncertainty from the fit alone)"
+        f"{eid} by {difference:.3g} {'µrad' if ERROR_INFO[eid].unit == 'urad' else 'µm'}"
+        f"{'' if eid in SQUARENESS_IDS else ' RMS'} ({ratio:.2g} times its standard "
+        "uncertainty before this doubt)"
         for ratio, eid, difference in beyond[:3]
     )
+    more = f" and {len(beyond) - 3} more" if len(beyond) > 3 else ""
     return (
         f"{trial.finding.effect.label} predicts the held-out data as well as the kept "
         f"{effect.label} (cross-validated RMS {trial.score:.4g} and {chosen.score:.4g}), and the "
-        f"errors fitted beside the two differ: {listed}. This plan does not settle the "
+        f"errors fitted beside the two differ: {listed}{more}. This plan does not settle the "
         "surface's shape; the stated uncertainties of the errors include that difference"
     ), delta
 

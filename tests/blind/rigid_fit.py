@@ -126,8 +126,8 @@ class RigidProjector:
         """The rigid-body model's least-squares fit of noise-free contributions (runs, targets):
         each function's B-spline coefficients (µm; µrad for the angles: zero at the reference
         position, evaluated by :meth:`function_values`), the three squareness errors (µrad) and
-        the residual's norm relative to the contribution's (0 when a rigid body produces it
-        exactly on these lines)."""
+        the residual's norm relative to the contribution's over every line's target means (0
+        when a rigid body produces it exactly on these lines; infinite when no line sees it)."""
         means = np.concatenate([diffs[line.spec.name].mean(axis=0) for line in self.lines])
         # minimum norm on the directions the lines do not see (the gauges: a squareness against
         # the straightness slopes, an angle no line reads), as the projection's rank does
@@ -144,7 +144,8 @@ class RigidProjector:
                 start += count
         squareness = dict(zip(("EC0Y", "EB0Z", "EA0Z"), coef[start:start + 3].tolist(),
                               strict=True))
-        return functions, squareness, float(np.linalg.norm(residual)) / max(size, 1e-300)
+        share = float(np.linalg.norm(residual)) / size if size > 0 else float("inf")
+        return functions, squareness, share
 
     def function_values(self, eid: str, coefficients: np.ndarray, q: np.ndarray) -> np.ndarray:
         """A function of :meth:`fit` at positions q (mm) along its axis."""

@@ -537,7 +537,7 @@ def _single_axis_truth(scenario: Scenario, eid: str, q: np.ndarray) -> np.ndarra
 
 def _single_axis_model(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
     """volucal's counterpart of :func:`_single_axis_truth`, and the function's standard
-    uncertainty (statistical part) at q."""
+    uncertainty at q (the final fit's covariance)."""
     model = result.final.model
     total = model.functions[eid](q).astype(float)
     if eid[1] in AXES:

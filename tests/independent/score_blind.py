@@ -28,6 +28,7 @@ from loop_scenarios import (
     squareness_errors,
     squareness_ratio,
 )
+from numpy.polynomial import legendre
 
 from tests.blind import effects as fx
 from tests.blind.laser import measure_line
@@ -35,7 +36,8 @@ from tests.blind.rigid_fit import RigidProjector
 from tests.blind.scenarios import Scenario, build_scenario, write_scenario
 
 #: A surface term is a rigid body's on the plan when the generator's own 21-error fit leaves
-#: less than this share of its contribution (norm over every line's target means).
+#: less than this share of its contribution (one norm over every line's target means; a term no
+#: line sees stays in the surface).
 RIGID_SHARE = 1e-3
 
 
@@ -71,8 +73,6 @@ def _material_logged(truth: dict) -> bool:
 def _legendre_terms(effect: fx.CrossAxis) -> dict[tuple[int, int], float]:
     """The surface's coefficients on the products P_k(u)·P_l(v) of Legendre polynomials (the
     same u, v), k, l ≥ 0."""
-    from numpy.polynomial import legendre
-
     out: dict[tuple[int, int], float] = {}
     for key, c in effect.coefficients.items():
         i, j = (int(t) for t in key.split(","))
@@ -85,8 +85,6 @@ def _legendre_terms(effect: fx.CrossAxis) -> dict[tuple[int, int], float]:
 
 def _product(effect: fx.CrossAxis, k: int, m: int, c: float) -> fx.CrossAxis:
     """c·P_k(u)·P_m(v) as a surface of the generator (its monomials)."""
-    from numpy.polynomial import legendre
-
     pu = legendre.leg2poly([0] * k + [1])
     pv = legendre.leg2poly([0] * m + [1])
     coefficients = {f"{i},{j}": c * a * b for i, a in enumerate(pu) for j, b in enumerate(pv)
