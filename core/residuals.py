@@ -210,7 +210,7 @@ class LoopResult:
     warnings: tuple[str, ...]
     #: per kept effect (as ``final.effects``): what of it the plan reads exactly as a change of
     #: the 21 errors (:class:`Shared`)
-    shared: tuple[Shared, ...] = ()
+    shared: tuple[Shared, ...]
 
     @property
     def kept(self) -> tuple[Effect, ...]:
@@ -218,12 +218,11 @@ class LoopResult:
 
     def effects_report(self) -> list[dict[str, object]]:
         out: list[dict[str, object]] = []
-        shared = self.shared or (Shared(),) * len(self.final.effects)
         for effect, values, cov, part in zip(
             self.final.effects,
             self.final.effect_parameters,
             self.final.effect_covariances,
-            shared,
+            self.shared,
             strict=True,
         ):
             assert isinstance(effect, Effect)
@@ -1916,7 +1915,7 @@ def close_loop(
             "more lines or longer lines to close the loop"
         )
         leftover = unexplained(base, cv_base, options.alpha)
-        return LoopResult(base, base, cv_base, cv_base, (), tuple(leftover), tuple(warnings))
+        return LoopResult(base, base, cv_base, cv_base, (), tuple(leftover), tuple(warnings), ())
     fit = _Fitter(measurement, readings, options, redundant, cancel)
     state = _State(base, cv_base)
     for _ in range(AUDIT_ROUNDS):
@@ -1992,8 +1991,9 @@ def _shared(fit: Identification, index: int) -> Shared:
     if not errors:
         return Shared()
     effect = fit.effects[index]
+    assert isinstance(effect, Effect)
     if not isinstance(effect, CrossAxis):
-        return Shared((str(getattr(effect, "label", "")),), errors, len(parts))
+        return Shared((effect.label,), errors, len(parts))
     weight = np.max([np.abs(p.direction) / np.abs(p.direction).max() for p in parts], axis=0)
     names = effect.term_names
     terms = tuple(n for n, w in zip(names, weight, strict=True) if w >= SHARE_NAMED)
@@ -2040,13 +2040,12 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> str | None:
     effect = chosen.finding.effect
     if not isinstance(effect, CrossAxis):
         return None
-    where = (effect.direction, {effect.along, effect.across})
     score = chosen.score
     for trial in trials:
         rival = trial.finding.effect
         if trial is chosen or not isinstance(rival, CrossAxis):
             continue
-        if (rival.direction, {rival.along, rival.across}) == where:
+        if _surface_place(rival) == _surface_place(effect):
             continue
         if not (trial.ok or trial.uncorroborated):
             continue
@@ -2060,6 +2059,13 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> str | None:
                 "tell them apart"
             )
     return None
+
+
+def _surface_place(effect: Effect) -> tuple[str, frozenset[str]] | None:
+    """A surface's direction and pair of axes (None for any other effect)."""
+    if not isinstance(effect, CrossAxis):
+        return None
+    return effect.direction, frozenset((effect.along, effect.across))
 
 
 #: A kept surface's shape is *unsettled* (and said so) when a rival surface of the same direction
@@ -2082,22 +2088,19 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | 
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, CrossAxis):
         return None, delta
-    where = (effect.direction, {effect.along, effect.across})
-    worst: tuple[list[tuple[float, str, float]], _Trial] | None = None
-    for trial in trials:
-        rival = trial.finding.effect
-        if trial is chosen or not trial.ok or not isinstance(rival, CrossAxis):
-            continue
-        if (rival.direction, {rival.along, rival.across}) != where:
-            continue
-        if trial.score > chosen.score * (1.0 + tie):
-            continue
-        moved = sorted(_moved_errors(chosen.refit, trial.refit), reverse=True)
-        if moved and (worst is None or moved[0][0] > worst[0][0][0]):
-            worst = (moved, trial)
-    if worst is None:
+    rivals = [
+        trial
+        for trial in trials
+        if trial is not chosen
+        and trial.ok
+        and _surface_place(trial.finding.effect) == _surface_place(effect)
+        and trial.score <= chosen.score * (1.0 + tie)
+    ]
+    if not rivals:
         return None, delta
-    moved, trial = worst
+    bands = {eid: chosen.refit.band(eid) for eid in chosen.refit.identifiability.identified_ids}
+    moves = [(sorted(_moved_errors(bands, trial.refit), reverse=True), trial) for trial in rivals]
+    moved, trial = max(moves, key=lambda m: m[0][0][0] if m[0] else 0.0)
     delta = trial.refit.model.parameters - chosen.refit.model.parameters
     beyond = [m for m in moved if m[0] > UNSETTLED_RATIO]
     if not beyond:
@@ -2117,12 +2120,14 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | 
     ), delta
 
 
-def _moved_errors(fit: Identification, other: Identification) -> list[tuple[float, str, float]]:
-    """(ratio, id, difference) of every identified error between two fits: the RMS difference
-    over its stroke (µm or µrad) and its ratio to ``fit``'s standard uncertainty."""
+def _moved_errors(
+    bands: dict[str, tuple[FloatArray, FloatArray, FloatArray]], other: Identification
+) -> list[tuple[float, str, float]]:
+    """(ratio, id, difference) of every error of ``bands`` (a fit's :meth:`Identification.band`
+    per identified error) between that fit and ``other``: the RMS difference over its stroke
+    (µm or µrad) and its ratio to the fit's standard uncertainty."""
     out = []
-    for eid in fit.identifiability.identified_ids:
-        q, value, std = fit.band(eid)
+    for eid, (q, value, std) in bands.items():
         if eid in SQUARENESS_IDS:
             values = np.array([other.model.squareness_urad[eid]])
         else:

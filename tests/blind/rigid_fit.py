@@ -100,11 +100,10 @@ class RigidProjector:
         scale = np.linalg.norm(design, axis=0)
         scale[scale == 0] = 1.0
         self.bases = bases
-        self.design = design
         self.scale = scale
         # Orthonormal basis of the column space from the Gram matrix's eigenvectors: much faster
         # than an SVD of the tall matrix when the BLAS threads compete for the cores.
-        a = design / scale
+        a = self.scaled = design / scale
         values, vectors = np.linalg.eigh(a.T @ a)
         keep = values > values[-1] * 1e-12
         self.basis = a @ (vectors[:, keep] / np.sqrt(values[keep]))
@@ -131,9 +130,9 @@ class RigidProjector:
         means = np.concatenate([diffs[line.spec.name].mean(axis=0) for line in self.lines])
         # minimum norm on the directions the lines do not see (the gauges: a squareness against
         # the straightness slopes, an angle no line reads), as the projection's rank does
-        coef, *_ = np.linalg.lstsq(self.design / self.scale, means, rcond=1e-6)
-        coef = coef / self.scale
-        residual = means - self.design @ coef
+        scaled, *_ = np.linalg.lstsq(self.scaled, means, rcond=1e-6)
+        residual = means - self.scaled @ scaled
+        coef = scaled / self.scale
         size = float(np.linalg.norm(means))
         functions: dict[str, np.ndarray] = {}
         start = 0

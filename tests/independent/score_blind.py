@@ -92,7 +92,9 @@ def _product(effect: fx.CrossAxis, k: int, m: int, c: float) -> fx.CrossAxis:
     return replace(effect, coefficients=coefficients)
 
 
-def rigid_share(scenario: Scenario) -> tuple[dict[str, list], dict[str, float], list]:
+def rigid_share(
+    scenario: Scenario,
+) -> tuple[RigidProjector | None, dict[str, np.ndarray], dict[str, float], list]:
     """What the scenario's surfaces hold that a rigid body produces exactly on its plan.
 
     Each surface is split into products of Legendre polynomials of its two positions (the
@@ -101,16 +103,17 @@ def rigid_share(scenario: Scenario) -> tuple[dict[str, list], dict[str, float], 
     its contribution to every line. No method can tell such a term from the angular errors and
     squareness that produce it (a twist c·u·v of X over Y×Z is a roll of Y growing along Y, seen
     through the Z travel): it is a gauge of the split between the 21 errors and the surface,
-    and volucal leaves it to the 21 errors. Returned: per function, the rigid fits to add to the
-    truth's (coefficients, scaled by the term's size); per squareness, the µrad to add; and the
-    surfaces less those terms (for the folding along the middle of the strokes)."""
+    and volucal leaves it to the 21 errors. Returned: the generator's fit (None without a
+    surface); per function, the coefficients of that fit to add to the truth's
+    (:meth:`RigidProjector.function_values`); per squareness, the µrad to add; and the surfaces
+    less those terms (for the folding along the middle of the strokes)."""
     surfaces = [e for e in scenario.effects if isinstance(e, fx.CrossAxis)]
     if not surfaces:
-        return {}, {}, []
+        return None, {}, {}, []
     projector = RigidProjector(scenario.plan, scenario.session.lines)
     baseline = {line.spec.name: measure_line(scenario.machine, [], line)
                 for line in scenario.session.lines}
-    functions: dict[str, list] = {}
+    functions: dict[str, np.ndarray] = {}
     squareness: dict[str, float] = {}
     remaining = []
     for effect in surfaces:
@@ -125,13 +128,13 @@ def rigid_share(scenario: Scenario) -> tuple[dict[str, list], dict[str, float], 
             if share >= RIGID_SHARE:
                 continue
             for eid, coefficients in fitted.items():
-                functions.setdefault(eid, []).append((projector, c * coefficients))
+                functions[eid] = functions.get(eid, 0.0) + c * coefficients
             for sid, value in square.items():
                 squareness[sid] = squareness.get(sid, 0.0) + c * value
             for key, value in _product(effect, k, m, c).coefficients.items():
                 left[key] = left.get(key, 0.0) - value
         remaining.append(replace(effect, coefficients=left))
-    return functions, squareness, remaining
+    return projector, functions, squareness, remaining
 
 
 def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[str, float], float]:  # type: ignore[no-untyped-def]
@@ -144,7 +147,7 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
     single: dict[str, list] = {}
     surfaces: dict[str, list] = {}
     scenario = build_scenario(seed)
-    rigid, rigid_squareness, remaining = rigid_share(scenario)
+    projector, rigid, rigid_squareness, remaining = rigid_share(scenario)
     for effect in scenario.effects:
         if effect.kind in ("cyclic", "local"):
             eid = f"E{getattr(effect, 'direction', effect.axis)}{effect.axis}"
@@ -166,8 +169,8 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
         value = np.asarray(table["value"], float)
         for effect in single.get(eid, ()):
             value = value + effect.value(q)
-        for projector, coefficients in rigid.get(eid, ()):
-            value = value + projector.function_values(eid, coefficients, q)
+        if projector is not None and eid in rigid:
+            value = value + projector.function_values(eid, rigid[eid], q)
         for effect in surfaces.get(eid, ()):
             states = fold_states(stroke, eid[2], q)
             a, b = (states[:, "XYZ".index(axis)] for axis in effect.depends_on)
