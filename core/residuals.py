@@ -2040,12 +2040,12 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> str | None:
     effect = chosen.finding.effect
     if not isinstance(effect, CrossAxis):
         return None
-    score = chosen.score
+    score, place = chosen.score, _surface_place(effect)
     for trial in trials:
         rival = trial.finding.effect
         if trial is chosen or not isinstance(rival, CrossAxis):
             continue
-        if _surface_place(rival) == _surface_place(effect):
+        if _surface_place(rival) == place:
             continue
         if not (trial.ok or trial.uncorroborated):
             continue
@@ -2088,12 +2088,13 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | 
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, CrossAxis):
         return None, delta
+    place = _surface_place(effect)
     rivals = [
         trial
         for trial in trials
         if trial is not chosen
         and trial.ok
-        and _surface_place(trial.finding.effect) == _surface_place(effect)
+        and _surface_place(trial.finding.effect) == place
         and trial.score <= chosen.score * (1.0 + tie)
     ]
     if not rivals:
