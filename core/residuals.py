@@ -1151,6 +1151,8 @@ def unexplained(
 
 #: A line repeats worse than its peers when its run-to-run spread is this many times theirs.
 PEER_SPREAD_RATIO = 2.0
+#: The peers' spread a line is compared with: this percentile of their variances.
+STEADY_PEERS = 25.0
 
 
 def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, Unexplained]]:
@@ -1160,9 +1162,11 @@ def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, U
     laser or a reflector that wanders, a beam cut and re-zeroed, an error periodic in time) only
     widens that line's spread and leaves no structure against it. Measured by the same optics in
     one session, lines of one quantity repeat alike: a line whose spread about its per-target,
-    per-direction means, in what the final model leaves, is :data:`PEER_SPREAD_RATIO` times the
-    median of its peers' (an F test at ``alpha``, Bonferroni over the lines, with the median
-    peer's degrees of freedom) is reported, with its index."""
+    per-direction means, in what the final model leaves, is :data:`PEER_SPREAD_RATIO` times that
+    of its steadiest peers (the lower quartile of their variances: an error that varies in time
+    along one axis spoils every line that moves it, most of a plan, and the median with them;
+    an F test at ``alpha``, Bonferroni over the lines, with the median peer's degrees of
+    freedom) is reported, with its index."""
     from scipy import special
 
     readings = identification.readings
@@ -1186,7 +1190,7 @@ def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, U
         ]
         if len(peers) < 3:
             continue
-        reference = float(np.median([v for v, _ in peers]))
+        reference = float(np.percentile([v for v, _ in peers], STEADY_PEERS))
         if reference <= 0 or variance < PEER_SPREAD_RATIO**2 * reference:
             continue
         peer_dof = int(np.median([d for _, d in peers]))
@@ -1203,8 +1207,9 @@ def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, U
                     where=f"line {line.name}, from run to run",
                     description=(
                         f"{line.spec.quantity} line {line.name} repeats to {sigma:.3g} {unit}, "
-                        f"{sigma / typical:.1f} times the {typical:.3g} {unit} of the plan's "
-                        f"{len(peers)} other {line.spec.quantity} lines (F test, log10 false alarm "
+                        f"{sigma / typical:.1f} times the {typical:.3g} {unit} that the steadiest "
+                        f"quarter of the plan's {len(peers)} other {line.spec.quantity} lines "
+                        "repeat to (F test, log10 false alarm "
                         f"{_log10_text(p)}): its readings change between runs or "
                         "within a run in a way no effect of the catalogue follows (a laser or "
                         "a reflector that wanders, a beam cut and re-zeroed, an error that "

@@ -317,6 +317,34 @@ def test_a_line_that_repeats_worse_than_its_peers_is_reported_from_run_to_run() 
     ]
 
 
+def test_an_error_periodic_in_time_along_one_axis_is_reported_on_every_line_that_moves_it() -> None:
+    """An X error periodic in time spoils the spread of every linear line that moves X, most
+    lines of the plan: each is reported, most as unsteady against the plan's steadiest lines
+    (the median line is itself spoiled; before, none was), and no line that does not move X is."""
+    truth = sim.random_truth(seed=15)
+    vm = sim.VirtualMachine(
+        truth, (), seed=15, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
+    )
+    measurement = vm.measure(plans.layout("full", truth.machine, STEP_MM, JITTER_MM))
+    lines, moving = [], []
+    for line in measurement.lines:
+        along_x = line.spec.direction[0] / np.linalg.norm(line.spec.direction)
+        if line.spec.quantity == "linear" and abs(along_x) > 0.1:
+            # 1 µm along X periodic in time (97 s; a run lasts 268 s), read along the line
+            wave = 1.0 * along_x * np.sin(2 * np.pi * line.data.times_s / 97.0)
+            line = Line(line.spec, replace(line.data, deviations=line.data.deviations + wave))
+            moving.append(line.name)
+        lines.append(line)
+    linear = [line for line in lines if line.spec.quantity == "linear"]
+    assert len(moving) > len(linear) / 2
+    report = close_loop(Measurement(measurement.machine, tuple(lines))).to_report()
+    # a line is reported once: unsteady, or for a systematic residual the loop could not explain
+    reported = {u["where"].split()[1].rstrip(",") for u in report["unexplained"]}
+    assert reported == set(moving)
+    unsteady = [u for u in report["unexplained"] if u["where"].endswith("from run to run")]
+    assert len(unsteady) > len(moving) / 2
+
+
 @pytest.mark.parametrize("jitter_mm", [3.5, 0.0])
 def test_a_cycle_shorter_than_twice_the_spacing_needs_irregular_targets(jitter_mm: float) -> None:
     """Lines along the axes only, targets about every 12 mm, a 9 mm cycle of X. Irregular targets
