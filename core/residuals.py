@@ -1513,12 +1513,11 @@ def _judge(
     why = effect.implausible(values, covariance, options.plausibility)
     if why is not None:
         return refused(f"implausible: {why}", "implausible")
-    lonely = _uncorroborated(effect, energy, refit.readings)
+    lonely = _uncorroborated(effect, energy, refit.readings) or _confirmed_by_one_line(
+        effect, tester, cv, cv_new, rows
+    )
     if lonely is not None:
         return refused(lonely, "one line only", uncorroborated=True)
-    unconfirmed = _confirmed_by_one_line(effect, tester, cv, cv_new, rows, refit.readings)
-    if unconfirmed is not None:
-        return refused(unconfirmed, "one line only", uncorroborated=True)
     if improvement < options.margin:
         return refused(f"below the {100 * options.margin:.0f} % margin: refused", "below margin")
     # over the same readings: a line left out as no prediction confirms nothing, nor is asked to
@@ -1596,7 +1595,6 @@ def _confirmed_by_one_line(
     cv: CrossValidation,
     cv_new: CrossValidation,
     rows: NDArray[np.bool_],
-    readings: Readings,
 ) -> str | None:
     """Why a finer function of an error is not kept when one line alone predicts its held-out
     readings better with it, or None.
@@ -1608,6 +1606,7 @@ def _confirmed_by_one_line(
     the current fit's σ², the readings both models predict)."""
     if effect.kind != "higher_order":
         return None
+    readings = tester.ident.readings
     before = np.where(rows, cv.residual, 0.0)
     after = np.where(rows, cv_new.residual, 0.0)
     gain = tester.w * (before**2 - after**2) / tester.sigma2
