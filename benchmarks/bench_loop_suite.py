@@ -7,8 +7,10 @@ written to files, imported by volucal and run through ``close_loop`` with the sh
 Prints a confusion table by kind (injected and visible, found, missed, kept without being
 injected), exact effect sets on scenarios whose every effect is visible (what it leaves in the
 21-error fit reaches 4× the noise), kept effects on clean scenarios, force-fits and unexplained
-reports on scenarios with an effect outside every catalogue, implausible kept effects, and the
-21-error accuracy against truth where the effect set is right. Beside the strict exact row, never
+reports on scenarios with an effect outside every catalogue (split by whether what the 21 errors
+leave of it reaches 4× the noise, as a visible catalogue effect's), implausible kept effects, the
+21-error accuracy against truth where the effect set is right, and where it is wrong, whether
+the stated uncertainties cover the errors' distance to the truth. Beside the strict exact row, never
 instead of it: the same scenarios counted right when each one-line effect (a visible effect no
 method can attribute on the plan: one line alone shows it, see ``loop_scenarios.Outcome``) is
 kept or reported unexplained on a line that shows it, and how the one-line effects were handled.
@@ -36,6 +38,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "independent"))
 sys.path.insert(0, str(ROOT))
+
+from loop_scenarios import VISIBLE_FACTOR  # noqa: E402
 
 ANGLE_IDS = {f"E{c}{a}" for c in "ABC" for a in "XYZ"}
 #: An error within this many stated standard uncertainties (RMS over a function, or a
@@ -73,6 +77,7 @@ def _one(seed: int, generator: str = "independent") -> dict:
         "showing": outcome.showing,
         "material_logged": outcome.material_logged,
         "unexplained_where": outcome.unexplained_where,
+        "outside_visibility": outcome.outside_visibility,
         "one_line": sorted([*effect, how] for effect, how in outcome.one_line_handling.items()),
         "right_up_to_one_line": outcome.right_up_to_one_line_effects,
         # kept effects of which a part reads as the 21 errors do on the plan (left to them)
@@ -232,6 +237,15 @@ def main() -> int:
         f"{sum(bool(r['kept']) for r in outside)} of {len(outside)}; reported unexplained in "
         f"{sum(r['unexplained'] > 0 for r in outside)} of {len(outside)}"
     )
+    # beside the strict row: an effect outside the catalogue that the 21 errors leave below the
+    # visibility of a catalogue effect (4× the noise) is at the limit of what any test can see
+    faint = [r for r in outside if r["outside_visibility"] < VISIBLE_FACTOR]
+    print(
+        f"  whose outside effect leaves ≥ {VISIBLE_FACTOR:g}× the noise in the 21-error fit: "
+        f"reported in {sum(r['unexplained'] > 0 for r in outside if r not in faint)} of "
+        f"{len(outside) - len(faint)}; less: reported in "
+        f"{sum(r['unexplained'] > 0 for r in faint)} of {len(faint)}"
+    )
     print(
         f"kept effects with implausible parameters: {sum(len(r['implausible']) for r in results)}"
     )
@@ -254,6 +268,17 @@ def main() -> int:
             f"per scenario {accuracy['median_band_ratio']:.2f}, "
             f"worst {accuracy['worst_band_ratio']:.2f}"
         )
+    # where the effect set is wrong the 21 errors are off the truth, and the bands must say so
+    wrong = [
+        r
+        for r in with_effects
+        if r["kept"] and {tuple(e) for e in r["expected"]} != {tuple(k) for k in r["kept"]}
+    ]
+    print(
+        f"where an effect was kept but the set is wrong ({len(wrong)} scenarios): every "
+        f"function and squareness within {HONEST_RATIO:g} stated standard uncertainties of the "
+        f"truth in {sum(r['band_ratio'] <= HONEST_RATIO for r in wrong)}"
+    )
     loop_times = sorted(r["loop_s"] for r in results)
     print(
         f"loop time per scenario: median {loop_times[len(loop_times) // 2]:.1f} s, "

@@ -1082,9 +1082,11 @@ def unexplained(
 ) -> list[Unexplained]:
     """Lines whose residual is larger than their repeatability allows, and what it follows.
 
-    For each line and target the mean residual over runs is compared with σ/√runs (χ² test over
-    the targets, Bonferroni over the lines) on the fit's residual; so is the spread of the run
-    means about their line's trend in time (a drift the runs disagree by). A significant line is
+    For each line and target the mean residual over runs is compared with σ/√runs (a χ² test
+    over the targets for a structure spread along the line, and the largest target mean,
+    Bonferroni over the targets, for one a few targets wide; Bonferroni over the lines) on the
+    fit's residual; so is the spread of the run means about their line's trend in time (a drift
+    the runs disagree by). A significant line is
     reported with where its largest systematic residual sits, how large it is, and the shares of
     its residual that follow the target position, the approach direction and time. With a
     cross-validation, place and size come from its held-out residuals: a structure on one line is
@@ -1111,8 +1113,15 @@ def unexplained(
         n = np.bincount(targets, minlength=k)
         valid = n > 0
         means = sums[valid] / n[valid]
-        chi2 = float(np.sum(means**2 * n[valid]) / sigma**2)
-        p_position = float(special.chdtrc(int(valid.sum()), chi2))
+        z = means * np.sqrt(n[valid]) / sigma
+        chi2 = float(np.sum(z**2))
+        # the χ² over the targets sees a structure spread along the line; the largest target
+        # mean (Bonferroni over the targets) sees one a few targets wide that χ² dilutes. Each
+        # is held to the time test's level, Bonferroni over the lines and two tests: the three
+        # tests' family-wise false-alarm level is at most 1.5 ``alpha``
+        p_spread = float(special.chdtrc(int(valid.sum()), chi2))
+        p_peak = float(valid.sum() * special.erfc(np.max(np.abs(z)) / np.sqrt(2)))
+        p_position = min(p_spread, p_peak)
         shares = _shares(readings, identification.residual, index)
         p_time = _time_p_value(readings, identification.residual, index, sigma)
         if min(p_position, p_time) * count * 2 >= alpha:
@@ -1831,7 +1840,8 @@ class _State:
     refused: dict[EffectKey, float] = field(default_factory=dict)
     #: kept surfaces a rival predicts as well
     ambiguous: dict[EffectKey, list[str]] = field(default_factory=dict)
-    #: per kept surface: how the 21 errors' parameters move to a rival that fits as well
+    #: per kept surface or set-up effect: how the 21 errors' parameters move to each rival that
+    #: fits as well, one per row (zero rows where none moves them beyond their uncertainty)
     shape_doubt: dict[EffectKey, FloatArray] = field(default_factory=dict)
     #: per axis: a kept searched cycle's aliases
     aliased: dict[str, tuple[float, ...]] = field(default_factory=dict)
@@ -1900,13 +1910,10 @@ def _forward(
             break
         key = chosen.finding.effect.key
         unsettled, move = _unsettled(chosen, tried_this_step, options.tie)
-        state.shape_doubt[key] = move
+        alike, moves = _alike(chosen, tried_this_step, options.tie)
+        state.shape_doubt[key] = np.vstack([np.atleast_2d(move), np.atleast_2d(moves)])
         # what the plan leaves open about this keep replaces what an earlier keep left open
-        ambiguous[key] = [
-            text
-            for text in (_alike(chosen, tried_this_step, options.tie), unsettled)
-            if text is not None
-        ]
+        ambiguous[key] = [text for text in (alike, unsettled) if text is not None]
         effect = chosen.finding.effect
         if chosen.finding.alias_mm:
             aliased[effect.axis] = chosen.finding.alias_mm  # type: ignore[index]
@@ -1998,10 +2005,11 @@ def close_loop(
 
 
 def _with_shape_doubt(fit: Identification, deltas: Sequence[FloatArray]) -> Identification:
-    """``fit`` with the errors' covariance widened by half the outer product of each kept
-    surface's move to its rival (:func:`_unsettled`), in the model's parameters and in the
+    """``fit`` with the errors' covariance widened by half the outer product of each move of
+    a kept surface or set-up effect to a rival that fits as well (:func:`_unsettled`,
+    :func:`_alike`, :func:`_interchangeable`; one per row), in the model's parameters and in the
     fit's normal inverse alike (a refined function's covariance is made from the latter)."""
-    moves = [d for d in deltas if np.any(d)]
+    moves = [move for d in deltas for move in np.atleast_2d(d) if np.any(move)]
     if not moves:
         return fit
     widening = sum(0.5 * np.outer(d, d) for d in moves)
@@ -2075,33 +2083,72 @@ def _shared_warnings(fit: Identification, shared: Sequence[Shared]) -> list[str]
     return out
 
 
-def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> str | None:
-    """A warning when the kept surface has a rival of another direction or pair of axes that
-    predicts the held-out data as well (within ``tie``), passing or refused only for showing on
-    one line: the plan cannot tell which of the two the machine has. Each trial's score is its
-    cross-validated error over the readings its comparison with the step's model ran on."""
+def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | None, FloatArray]:
+    """A warning when the kept surface has rivals of another direction or pair of axes that
+    predict the held-out data as well (within ``tie``), passing or refused only for showing on
+    one line: the plan cannot tell which of them the machine has. Each trial's score is its
+    cross-validated error over the readings its comparison with the step's model ran on.
+
+    Returned with it, as :func:`_interchangeable`, the differences of the errors' parameters to
+    every rival that moves an error fitted beside it by more than :data:`UNSETTLED_RATIO` of its
+    stated standard uncertainties (one per row): each may be the machine's surface."""
     effect = chosen.finding.effect
+    delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, CrossAxis):
-        return None
+        return None, delta
     score, place = chosen.score, _surface_place(effect)
-    for trial in trials:
-        rival = trial.finding.effect
-        if trial is chosen or not isinstance(rival, CrossAxis):
-            continue
-        if _surface_place(rival) == place:
-            continue
-        if not (trial.ok or trial.uncorroborated):
-            continue
-        other = trial.score
-        if other <= score * (1.0 + tie):
-            return (
-                f"{effect.label} was kept, but {rival.label} predicts the held-out data as well "
-                f"(cross-validated RMS {score:.4g} and {other:.4g}): this plan cannot tell "
-                f"which direction and pair of axes the surface belongs to; away from the lines "
-                "measured the two differ. Lines along the pair's axes at other offsets would "
-                "tell them apart"
-            )
-    return None
+    rivals = sorted(
+        (
+            trial
+            for trial in trials
+            if trial is not chosen
+            and isinstance(trial.finding.effect, CrossAxis)
+            and _surface_place(trial.finding.effect) != place
+            and (trial.ok or trial.uncorroborated)
+            and trial.score <= score * (1.0 + tie)
+        ),
+        key=lambda trial: trial.score,
+    )
+    if not rivals:
+        return None, delta
+    bands = {eid: chosen.refit.band(eid) for eid in chosen.refit.identifiability.identified_ids}
+    moves = [(sorted(_moved_errors(bands, trial.refit), reverse=True), trial) for trial in rivals]
+    moved, trial = max(moves, key=lambda m: m[0][0][0] if m[0] else 0.0)
+    beyond = [m for m in moved if m[0] > UNSETTLED_RATIO]
+    deltas = _moves_beyond(chosen, moves)
+    said = (
+        f"; the errors fitted beside {trial.finding.effect.label} differ: "
+        f"{_moved_text(beyond)}, and the stated uncertainties of the errors include the "
+        "differences"
+        if beyond
+        else ""
+    )
+    named = [t.finding.effect.label for t in rivals[:3]]
+    more = f" and {len(rivals) - 3} more" if len(rivals) > 3 else ""
+    return (
+        f"{effect.label} was kept, but {_and(named)}{more} "
+        f"predict{'s' if len(rivals) == 1 else ''} the held-out data as well (cross-validated "
+        f"RMS {score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals[:3]])}): this plan "
+        "cannot tell which direction and pair of axes the surface belongs to; away from the "
+        f"lines measured they differ{said}. Lines along the pair's axes at other offsets "
+        "would tell them apart"
+    ), deltas
+
+
+def _moves_beyond(
+    chosen: _Trial, moves: list[tuple[list[tuple[float, str, float]], _Trial]]
+) -> FloatArray:
+    """The differences of the errors' parameters from ``chosen``'s fit to each rival of
+    ``moves`` (its :func:`_moved_errors`, largest first) that moves an error by more than
+    :data:`UNSETTLED_RATIO` of its stated standard uncertainties, one per row."""
+    size = chosen.refit.model.parameters.size
+    return np.array(
+        [
+            trial.refit.model.parameters - chosen.refit.model.parameters
+            for moved, trial in moves
+            if moved and moved[0][0] > UNSETTLED_RATIO
+        ]
+    ).reshape(-1, size)
 
 
 def _surface_place(effect: Effect) -> tuple[str, frozenset[str]] | None:
@@ -2129,6 +2176,8 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | 
     even choice between them about the kept one): the bands then say what the plan settles."""
     effect = chosen.finding.effect
     delta = np.zeros_like(chosen.refit.model.parameters)
+    if isinstance(effect, (AbbeOffset, Cosine)):
+        return _interchangeable(chosen, effect, trials, tie)
     if not isinstance(effect, CrossAxis):
         return None, delta
     place = _surface_place(effect)
@@ -2149,19 +2198,82 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | 
     beyond = [m for m in moved if m[0] > UNSETTLED_RATIO]
     if not beyond:
         return None, delta
+    return (
+        f"{trial.finding.effect.label} predicts the held-out data as well as the kept "
+        f"{effect.label} (cross-validated RMS {trial.score:.4g} and {chosen.score:.4g}), and the "
+        f"errors fitted beside the two differ: {_moved_text(beyond)}. This plan does not settle "
+        "the surface's shape; the stated uncertainties of the errors include that difference"
+    ), delta
+
+
+#: Two fits read the readings identically when their weighted residual sums of squares agree
+#: to this share: the plan spans the same model with either effect (only rounding differs).
+SAME_FIT_SHARE = 1e-6
+
+
+def _chi2(fit: Identification) -> float:
+    return float(np.sum((fit.residual / fit.readings.sigma) ** 2))
+
+
+def _interchangeable(
+    chosen: _Trial, effect: AbbeOffset | Cosine, trials: list[_Trial], tie: float
+) -> tuple[str | None, FloatArray]:
+    """What a kept set-up effect (an Abbe offset, a cosine misalignment) leaves open: the same
+    kind of effect on another line that passes and fits the readings identically (the plan's
+    21 errors take up one line's set-up as readily as the other's: the lines are tied by the
+    errors they read) or predicts the held-out data as well (within ``tie``). The held-out error
+    cannot rank such rivals: removing either line frees the other's set-up too.
+
+    Returned as :func:`_unsettled`: a warning naming the lines, with the errors fitted beside the
+    rival that moves them most where they differ by more than :data:`UNSETTLED_RATIO` stated
+    standard uncertainties, and the differences of the errors' parameters to every rival that
+    moves one so far (one per row: each line may be the one, and each moves other errors)."""
+    delta = np.zeros_like(chosen.refit.model.parameters)
+    chi2 = _chi2(chosen.refit)
+    rivals = [
+        trial
+        for trial in trials
+        if trial is not chosen
+        and trial.ok
+        and type(trial.finding.effect) is type(effect)
+        and trial.finding.effect.line != effect.line  # type: ignore[attr-defined]
+        and (
+            abs(_chi2(trial.refit) - chi2) <= SAME_FIT_SHARE * chi2
+            or trial.score <= chosen.score * (1.0 + tie)
+        )
+    ]
+    if not rivals:
+        return None, delta
+    bands = {eid: chosen.refit.band(eid) for eid in chosen.refit.identifiability.identified_ids}
+    moves = [(sorted(_moved_errors(bands, trial.refit), reverse=True), trial) for trial in rivals]
+    moved, trial = max(moves, key=lambda m: m[0][0][0] if m[0] else 0.0)
+    beyond = [m for m in moved if m[0] > UNSETTLED_RATIO]
+    deltas = _moves_beyond(chosen, moves)
+    lines = _and([t.finding.effect.line_name for t in rivals])  # type: ignore[attr-defined]
+    said = (
+        f"; the errors fitted beside {trial.finding.effect.label} differ: "
+        f"{_moved_text(beyond)}, and the stated uncertainties of the errors include the "
+        "differences"
+        if beyond
+        else "; the errors fitted beside them agree within their uncertainties"
+    )
+    return (
+        f"{effect.label} was kept, but the same on line{'s' if len(rivals) > 1 else ''} "
+        f"{lines} fits the readings as well (cross-validated RMS {chosen.score:.4g} kept, "
+        f"{_and([f'{t.score:.4g}' for t in rivals])}): this plan cannot tell which line's "
+        f"set-up it is{said}. Check those lines' set-up, or measure them again"
+    ), deltas
+
+
+def _moved_text(beyond: list[tuple[float, str, float]]) -> str:
+    """The three errors :func:`_moved_errors` moves most, in words, and how many more."""
     listed = ", ".join(
         f"{eid} by {difference:.3g} {'µrad' if ERROR_INFO[eid].unit == 'urad' else 'µm'}"
         f"{'' if eid in SQUARENESS_IDS else ' RMS'} ({ratio:.2g} times its standard "
         "uncertainty before this doubt)"
         for ratio, eid, difference in beyond[:3]
     )
-    more = f" and {len(beyond) - 3} more" if len(beyond) > 3 else ""
-    return (
-        f"{trial.finding.effect.label} predicts the held-out data as well as the kept "
-        f"{effect.label} (cross-validated RMS {trial.score:.4g} and {chosen.score:.4g}), and the "
-        f"errors fitted beside the two differ: {listed}{more}. This plan does not settle the "
-        "surface's shape; the stated uncertainties of the errors include that difference"
-    ), delta
+    return listed + (f" and {len(beyond) - 3} more" if len(beyond) > 3 else "")
 
 
 def _moved_errors(

@@ -287,6 +287,9 @@ class Outcome:
     material_logged: bool = False
     #: the "where" of every entry of report["unexplained"] ("line NAME at P mm", …)
     unexplained_where: list[str] = field(default_factory=list)
+    #: on an outside scenario: the peak of what the 21-error fit leaves of the effect outside
+    #: every catalogue (alone, no noise), in units of the noise, as ``visibility``
+    outside_visibility: float = 0.0
 
     @property
     def visible_expected(self) -> set[tuple[str, str]]:
@@ -412,6 +415,7 @@ def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
         label: sorted(name for name, value in lines.items() if value / noise >= VISIBLE_FACTOR)
         for label, lines in peaks.items()
     }
+    outside = unabsorbed(scenario, outside=True)
     material = [t for line in measured for t in line.material_c]
     material_logged = max(material) - min(material) > MATERIAL_CHANGE_C
     return Outcome(
@@ -434,26 +438,29 @@ def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
         showing,
         material_logged,
         [u["where"] for u in report["unexplained"]],
+        max(outside.values(), default=0.0) / noise,
     )
 
 
-def unabsorbed(scenario: Scenario) -> dict[str, float]:
+def unabsorbed(scenario: Scenario, outside: bool = False) -> dict[str, float]:
     """Per catalogue effect: the peak of what it leaves in the residual of volucal's 21-error
     identification (no loop) when the machine has that effect alone, no other error and no noise.
 
     An effect the 21 errors absorb entirely on this plan (a thermal drift of an axis that one line
     measures once, a cosine error of a line nothing else checks) is not missing from the model
-    for this plan; the loop can only be asked to find what the rigid body leaves.
+    for this plan; the loop can only be asked to find what the rigid body leaves. With
+    ``outside``, the same of each effect outside every catalogue instead.
     """
     return {
         label: max(lines.values(), default=0.0)
-        for label, lines in unabsorbed_by_line(scenario).items()
+        for label, lines in unabsorbed_by_line(scenario, outside).items()
     }
 
 
-def unabsorbed_by_line(scenario: Scenario) -> dict[str, dict[str, float]]:
-    """As :func:`unabsorbed`, per line: for each catalogue effect, the peak |residual| of each
-    line's readings (µm, µrad on angular lines); their maximum is :func:`unabsorbed`'s value."""
+def unabsorbed_by_line(scenario: Scenario, outside: bool = False) -> dict[str, dict[str, float]]:
+    """As :func:`unabsorbed`, per line: for each catalogue effect (with ``outside``, each effect
+    outside every catalogue), the peak |residual| of each line's readings (µm, µrad on angular
+    lines); their maximum is :func:`unabsorbed`'s value."""
     from volucal.core.identify import IdentifyOptions, identify
     from volucal.core.io.plan import import_plan, load_plan
 
@@ -465,12 +472,22 @@ def unabsorbed_by_line(scenario: Scenario) -> dict[str, dict[str, float]]:
     )
     laser = replace(scenario.laser, noise=0.0, alignment_urad=0.0)
     out: dict[str, dict[str, float]] = {}
-    singles = [
-        (f"{e.kind} {e.where}", [e], []) for e in scenario.effects if e.kind in MACHINE_KINDS
-    ]
-    singles += [(f"{s.kind} {s.line}", [], [s]) for s in scenario.setups]
-    for label, effects, setups in singles:
-        alone = Scenario(scenario.seed, scenario.plan_path, rigid, laser, effects, setups)
+    if outside:
+        singles = [
+            (f"{e.kind} {e.where}", [e], [], [])
+            for e in scenario.effects
+            if e.kind not in MACHINE_KINDS
+        ]
+        singles += [(f"{o.kind} {' '.join(o.lines)}", [], [], [o]) for o in scenario.outside]
+    else:
+        singles = [
+            (f"{e.kind} {e.where}", [e], [], [])
+            for e in scenario.effects
+            if e.kind in MACHINE_KINDS
+        ]
+        singles += [(f"{s.kind} {s.line}", [], [s], []) for s in scenario.setups]
+    for label, effects, setups, others in singles:
+        alone = Scenario(scenario.seed, scenario.plan_path, rigid, laser, effects, setups, others)
         info, measured = measure(alone, scenario.seed)
         with tempfile.TemporaryDirectory(prefix="volucal-visible-") as tmp:
             measurement = import_plan(

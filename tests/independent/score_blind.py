@@ -242,4 +242,12 @@ def run_blind(seed: int) -> Outcome:
         showing,
         _material_logged(truth),
         [u["where"] for u in report["unexplained"]],
+        max(
+            (
+                float(e["visibility"]["after_rigid_fit_peak"]) / noise
+                for e in truth["effects"]
+                if e["kind"].startswith("outside:")
+            ),
+            default=0.0,
+        ),
     )
