@@ -2111,10 +2111,7 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | None
     )
     if not rivals:
         return None, delta
-    bands = {eid: chosen.refit.band(eid) for eid in chosen.refit.identifiability.identified_ids}
-    moves = [(sorted(_moved_errors(bands, trial.refit), reverse=True), trial) for trial in rivals]
-    moved, trial = max(moves, key=lambda m: m[0][0][0] if m[0] else 0.0)
-    beyond = [m for m in moved if m[0] > UNSETTLED_RATIO]
+    moves, trial, beyond = _rival_moves(chosen, rivals)
     deltas = _moves_beyond(chosen, moves)
     said = (
         f"; the errors fitted beside {trial.finding.effect.label} differ: "
@@ -2133,6 +2130,20 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | None
         f"lines measured they differ{said}. Lines along the pair's axes at other offsets "
         "would tell them apart"
     ), deltas
+
+
+def _rival_moves(
+    chosen: _Trial, rivals: list[_Trial]
+) -> tuple[
+    list[tuple[list[tuple[float, str, float]], _Trial]], _Trial, list[tuple[float, str, float]]
+]:
+    """Per rival of the kept fit, the errors fitted beside it that it moves (:func:`_moved_errors`,
+    largest first); the rival that moves one most, and those it moves by more than
+    :data:`UNSETTLED_RATIO` of their stated standard uncertainties."""
+    bands = {eid: chosen.refit.band(eid) for eid in chosen.refit.identifiability.identified_ids}
+    moves = [(sorted(_moved_errors(bands, trial.refit), reverse=True), trial) for trial in rivals]
+    moved, trial = max(moves, key=lambda m: m[0][0][0] if m[0] else 0.0)
+    return moves, trial, [m for m in moved if m[0] > UNSETTLED_RATIO]
 
 
 def _moves_beyond(
@@ -2191,11 +2202,8 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | 
     ]
     if not rivals:
         return None, delta
-    bands = {eid: chosen.refit.band(eid) for eid in chosen.refit.identifiability.identified_ids}
-    moves = [(sorted(_moved_errors(bands, trial.refit), reverse=True), trial) for trial in rivals]
-    moved, trial = max(moves, key=lambda m: m[0][0][0] if m[0] else 0.0)
+    _, trial, beyond = _rival_moves(chosen, rivals)
     delta = trial.refit.model.parameters - chosen.refit.model.parameters
-    beyond = [m for m in moved if m[0] > UNSETTLED_RATIO]
     if not beyond:
         return None, delta
     return (
@@ -2244,10 +2252,7 @@ def _interchangeable(
     ]
     if not rivals:
         return None, delta
-    bands = {eid: chosen.refit.band(eid) for eid in chosen.refit.identifiability.identified_ids}
-    moves = [(sorted(_moved_errors(bands, trial.refit), reverse=True), trial) for trial in rivals]
-    moved, trial = max(moves, key=lambda m: m[0][0][0] if m[0] else 0.0)
-    beyond = [m for m in moved if m[0] > UNSETTLED_RATIO]
+    moves, trial, beyond = _rival_moves(chosen, rivals)
     deltas = _moves_beyond(chosen, moves)
     lines = _and([t.finding.effect.line_name for t in rivals])  # type: ignore[attr-defined]
     said = (
