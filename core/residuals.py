@@ -1909,11 +1909,13 @@ def _forward(
         if chosen is None:
             break
         key = chosen.finding.effect.key
-        unsettled, move = _unsettled(chosen, tried_this_step, options.tie)
-        alike, moves = _alike(chosen, tried_this_step, options.tie)
-        state.shape_doubt[key] = np.vstack([np.atleast_2d(move), np.atleast_2d(moves)])
+        doubts = [
+            doubt(chosen, tried_this_step, options.tie)
+            for doubt in (_alike, _unsettled, _interchangeable)
+        ]
+        state.shape_doubt[key] = np.vstack([np.atleast_2d(moves) for _, moves in doubts])
         # what the plan leaves open about this keep replaces what an earlier keep left open
-        ambiguous[key] = [text for text in (alike, unsettled) if text is not None]
+        ambiguous[key] = [text for text, _ in doubts if text is not None]
         effect = chosen.finding.effect
         if chosen.finding.alias_mm:
             aliased[effect.axis] = chosen.finding.alias_mm  # type: ignore[index]
@@ -2111,15 +2113,7 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | None
     )
     if not rivals:
         return None, delta
-    moves, trial, beyond = _rival_moves(chosen, rivals)
-    deltas = _moves_beyond(chosen, moves)
-    said = (
-        f"; the errors fitted beside {trial.finding.effect.label} differ: "
-        f"{_moved_text(beyond)}, and the stated uncertainties of the errors include the "
-        "differences"
-        if beyond
-        else ""
-    )
+    trial, beyond, deltas = _rival_moves(chosen, rivals)
     named = [t.finding.effect.label for t in rivals[:3]]
     more = f" and {len(rivals) - 3} more" if len(rivals) > 3 else ""
     return (
@@ -2127,39 +2121,41 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | None
         f"predict{'s' if len(rivals) == 1 else ''} the held-out data as well (cross-validated "
         f"RMS {score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals[:3]])}): this plan "
         "cannot tell which direction and pair of axes the surface belongs to; away from the "
-        f"lines measured they differ{said}. Lines along the pair's axes at other offsets "
-        "would tell them apart"
+        f"lines measured they differ{_moves_said(trial, beyond)}. Lines along the pair's axes "
+        "at other offsets would tell them apart"
     ), deltas
 
 
 def _rival_moves(
     chosen: _Trial, rivals: list[_Trial]
-) -> tuple[
-    list[tuple[list[tuple[float, str, float]], _Trial]], _Trial, list[tuple[float, str, float]]
-]:
-    """Per rival of the kept fit, the errors fitted beside it that it moves (:func:`_moved_errors`,
-    largest first); the rival that moves one most, and those it moves by more than
-    :data:`UNSETTLED_RATIO` of their stated standard uncertainties."""
+) -> tuple[_Trial, list[tuple[float, str, float]], FloatArray]:
+    """How the rivals of the kept fit move the errors fitted beside it (:func:`_moved_errors`):
+    the rival that moves one most, the errors it moves by more than :data:`UNSETTLED_RATIO` of
+    their stated standard uncertainties (largest first), and the differences of the errors'
+    parameters to every rival that moves one so far, one per row."""
     bands = {eid: chosen.refit.band(eid) for eid in chosen.refit.identifiability.identified_ids}
     moves = [(sorted(_moved_errors(bands, trial.refit), reverse=True), trial) for trial in rivals]
     moved, trial = max(moves, key=lambda m: m[0][0][0] if m[0] else 0.0)
-    return moves, trial, [m for m in moved if m[0] > UNSETTLED_RATIO]
-
-
-def _moves_beyond(
-    chosen: _Trial, moves: list[tuple[list[tuple[float, str, float]], _Trial]]
-) -> FloatArray:
-    """The differences of the errors' parameters from ``chosen``'s fit to each rival of
-    ``moves`` (its :func:`_moved_errors`, largest first) that moves an error by more than
-    :data:`UNSETTLED_RATIO` of its stated standard uncertainties, one per row."""
-    size = chosen.refit.model.parameters.size
-    return np.array(
+    rows = np.array(
         [
-            trial.refit.model.parameters - chosen.refit.model.parameters
-            for moved, trial in moves
-            if moved and moved[0][0] > UNSETTLED_RATIO
+            other.refit.model.parameters - chosen.refit.model.parameters
+            for errors, other in moves
+            if errors and errors[0][0] > UNSETTLED_RATIO
         ]
-    ).reshape(-1, size)
+    ).reshape(-1, chosen.refit.model.parameters.size)
+    return trial, [m for m in moved if m[0] > UNSETTLED_RATIO], rows
+
+
+def _moves_said(trial: _Trial, beyond: list[tuple[float, str, float]]) -> str:
+    """The clause of a warning that names the errors ``trial`` moves beyond their uncertainty
+    (empty when it moves none)."""
+    if not beyond:
+        return ""
+    return (
+        f"; the errors fitted beside {trial.finding.effect.label} differ: "
+        f"{_moved_text(beyond)}, and the stated uncertainties of the errors include the "
+        "differences"
+    )
 
 
 def _surface_place(effect: Effect) -> tuple[str, frozenset[str]] | None:
@@ -2187,8 +2183,6 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | 
     even choice between them about the kept one): the bands then say what the plan settles."""
     effect = chosen.finding.effect
     delta = np.zeros_like(chosen.refit.model.parameters)
-    if isinstance(effect, (AbbeOffset, Cosine)):
-        return _interchangeable(chosen, effect, trials, tie)
     if not isinstance(effect, CrossAxis):
         return None, delta
     place = _surface_place(effect)
@@ -2202,7 +2196,7 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | 
     ]
     if not rivals:
         return None, delta
-    _, trial, beyond = _rival_moves(chosen, rivals)
+    trial, beyond, _ = _rival_moves(chosen, rivals)
     delta = trial.refit.model.parameters - chosen.refit.model.parameters
     if not beyond:
         return None, delta
@@ -2224,7 +2218,7 @@ def _chi2(fit: Identification) -> float:
 
 
 def _interchangeable(
-    chosen: _Trial, effect: AbbeOffset | Cosine, trials: list[_Trial], tie: float
+    chosen: _Trial, trials: list[_Trial], tie: float
 ) -> tuple[str | None, FloatArray]:
     """What a kept set-up effect (an Abbe offset, a cosine misalignment) leaves open: the same
     kind of effect on another line that passes and fits the readings identically (the plan's
@@ -2236,7 +2230,10 @@ def _interchangeable(
     rival that moves them most where they differ by more than :data:`UNSETTLED_RATIO` stated
     standard uncertainties, and the differences of the errors' parameters to every rival that
     moves one so far (one per row: each line may be the one, and each moves other errors)."""
+    effect = chosen.finding.effect
     delta = np.zeros_like(chosen.refit.model.parameters)
+    if not isinstance(effect, (AbbeOffset, Cosine)):
+        return None, delta
     chi2 = _chi2(chosen.refit)
     rivals = [
         trial
@@ -2252,15 +2249,10 @@ def _interchangeable(
     ]
     if not rivals:
         return None, delta
-    moves, trial, beyond = _rival_moves(chosen, rivals)
-    deltas = _moves_beyond(chosen, moves)
+    trial, beyond, deltas = _rival_moves(chosen, rivals)
     lines = _and([t.finding.effect.line_name for t in rivals])  # type: ignore[attr-defined]
-    said = (
-        f"; the errors fitted beside {trial.finding.effect.label} differ: "
-        f"{_moved_text(beyond)}, and the stated uncertainties of the errors include the "
-        "differences"
-        if beyond
-        else "; the errors fitted beside them agree within their uncertainties"
+    said = _moves_said(trial, beyond) or (
+        "; the errors fitted beside them agree within their uncertainties"
     )
     return (
         f"{effect.label} was kept, but the same on line{'s' if len(rivals) > 1 else ''} "
