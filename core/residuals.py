@@ -90,11 +90,14 @@ class LoopOptions:
     candidates_per_step : how many of the strongest findings are refitted together; the best
         one that passes is kept.
     max_refits_per_step : when a batch is refused, further proposals of the same step are tried
-        up to this many refits before the loop stops.
+        up to this many refits before the loop stops: the strongest machine effect of each kind
+        no refit of the step has tried, whatever its share of the strongest, not the next
+        variants of the refused structure (a weaker effect of another kind behind them is not
+        lost with them); set-up effects only ever among the strongest.
     retry_factor : a refused candidate is refitted again once its F statistic has grown by this
         factor (the model around it changed).
-    contender_share : a proposal is refitted in a batch only when the residual sum of squares it
-        would remove is at least this share of the strongest proposal's.
+    contender_share : a proposal is refitted in a step's first batch only when the residual sum
+        of squares it would remove is at least this share of the strongest proposal's.
     tie : candidates whose cross-validated RMS is within this share of the best are equal; the
         one with fewer parameters is kept.
     repeatability_log10, repeatability_spread : a candidate whose size, fitted run by run within
@@ -1878,14 +1881,21 @@ def _forward(
         tried = 0
         tried_this_step: list[_Trial] = []
         while proposals and chosen is None and tried < options.max_refits_per_step:
-            # refit the strongest few, but not those far weaker than the best: they are scored
-            # again at the next step, against a model that then holds the strongest
-            strongest = max(f.gain for f in proposals)
-            batch = [
-                f
-                for f in proposals[: options.candidates_per_step]
-                if f.gain >= options.contender_share * strongest
-            ]
+            if not tried:
+                # refit the strongest few, but not those far weaker than the best: they are
+                # scored again at the next step, against a model that then holds the strongest
+                strongest = max(f.gain for f in proposals)
+                batch = [
+                    f
+                    for f in proposals[: options.candidates_per_step]
+                    if f.gain >= options.contender_share * strongest
+                ]
+            else:
+                # the strongest were refused: the next variants of their structure mostly would
+                # be too, and a weaker effect of another kind behind them would end with the step
+                batch = _other_kinds(proposals, tried_this_step, options.candidates_per_step)
+            if not batch:
+                break
             proposals = [f for f in proposals if f not in batch]
             trials = []
             for finding in batch:
@@ -2312,6 +2322,21 @@ def _complexity(trial: _Trial) -> int:
     effect = trial.finding.effect
     index = list(trial.refit.effects).index(effect)
     return int(trial.refit.effect_parameters[index].size) + effect.searched
+
+
+def _other_kinds(proposals: list[Finding], tried: list[_Trial], count: int) -> list[Finding]:
+    """The strongest proposal of each kind of machine effect no refit of this step has tried,
+    up to ``count``. A set-up effect (an Abbe offset, a cosine error) is refitted only among the
+    strongest: one line's set-up takes whatever that line alone shows, an effect outside the
+    catalogue too, and it has no second line to be refused by."""
+    seen = {t.finding.effect.kind for t in tried}
+    out: list[Finding] = []
+    for finding in proposals:
+        kind = finding.effect.kind
+        if finding.effect.line_index is None and kind not in seen and len(out) < count:
+            seen.add(kind)
+            out.append(finding)
+    return out
 
 
 def _distinct(findings: list[Finding]) -> list[Finding]:
