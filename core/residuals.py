@@ -1440,10 +1440,13 @@ class _Trial:
     parameters: dict[str, object]
     uncorroborated: bool = False  # refused only because one line alone shows it
     #: its cross-validated error over the readings the comparison with the current model runs
-    #: on (:func:`_compared`): the same for every candidate of a step, wild blocks left out
+    #: on (:func:`_compared`, wild blocks left out); among the candidates of a step, over the
+    #: readings every one of them predicts (:func:`_on_common_rows`)
     score: float = float("nan")
     #: the rule that refused it (:data:`VERDICTS`), "kept" when it passed them all
     verdict: str = "kept"
+    #: the readings its comparison with the current model ran on
+    rows: NDArray[np.bool_] | None = None
 
 
 class _Fitter:
@@ -1520,6 +1523,7 @@ def _judge(
             uncorroborated,
             after,
             verdict,
+            rows,
         )
 
     why = effect.implausible(values, covariance, options.plausibility)
@@ -1552,7 +1556,26 @@ def _judge(
         uneven = _uneven(sizes.along_line(), options)
         if uneven is not None:
             return refused(uneven, "uneven along its line")
-    return _Trial(finding, refit, cv_new, True, reason, parameters, score=after)
+    return _Trial(finding, refit, cv_new, True, reason, parameters, score=after, rows=rows)
+
+
+def _on_common_rows(trials: list[_Trial]) -> list[_Trial]:
+    """``trials`` with the score of each that passed, or was refused only for showing on one
+    line, taken over the readings all of those predict. Each candidate's own comparison leaves
+    out the held-out lines or blocks its fit extrapolates wildly: ranked on their own rows, a
+    candidate that makes one more line wild is excused the error there that its rival is
+    charged with (blind 17124: an Abbe offset ranked above the true cosine error of the same
+    line, which predicts every reading better)."""
+    ranked = [t for t in trials if (t.ok or t.uncorroborated) and t.rows is not None]
+    if len(ranked) < 2:
+        return trials
+    rows = np.logical_and.reduce([t.rows for t in ranked])
+    if not rows.any():
+        return trials
+    return [
+        replace(t, score=_rms(t.cv.residual, t.refit.readings, rows)) if t in ranked else t
+        for t in trials
+    ]
 
 
 #: A step's decision in a few words (report.json ``loop[].verdict``): kept; passed every rule but
@@ -1904,14 +1927,19 @@ def _forward(
                 )
                 trials.append(_judge(finding, current, cv, refit, cv_new, options))
             tried += len(batch)
-            tried_this_step += trials
+            tried_this_step = _on_common_rows(tried_this_step + trials)
+            trials = tried_this_step[-len(trials) :]
             chosen = _simplest_best([t for t in trials if t.ok], options.tie)
             for trial in trials:
                 if not trial.ok:
                     refused[trial.finding.effect.key] = trial.finding.f_statistic
                 reason, verdict = trial.reason, trial.verdict
-                if trial.ok and trial is not chosen:
-                    reason += f"; {chosen.finding.effect.label if chosen else ''} was kept instead"
+                if trial.ok and trial is not chosen and chosen is not None:
+                    reason += (
+                        f"; {chosen.finding.effect.label} was kept instead (cross-validated RMS "
+                        f"{chosen.score:.4g} against {trial.score:.4g} over the readings every "
+                        "candidate of the step predicts)"
+                    )
                     verdict = "another kept"
                 steps.append(
                     _step(number, trial, trial is chosen, reason, current, cv, verdict=verdict)
@@ -1921,7 +1949,7 @@ def _forward(
         key = chosen.finding.effect.key
         doubts = [
             doubt(chosen, tried_this_step, options.tie)
-            for doubt in (_alike, _unsettled, _interchangeable)
+            for doubt in (_alike, _unsettled, _interchangeable, _which_set_up)
         ]
         state.shape_doubt[key] = np.vstack([np.atleast_2d(moves) for _, moves in doubts])
         # what the plan leaves open about this keep replaces what an earlier keep left open
@@ -2269,6 +2297,46 @@ def _interchangeable(
         f"{lines} fits the readings as well (cross-validated RMS {chosen.score:.4g} kept, "
         f"{_and([f'{t.score:.4g}' for t in rivals])}): this plan cannot tell which line's "
         f"set-up it is{said}. Check those lines' set-up, or measure them again"
+    ), deltas
+
+
+def _which_set_up(
+    chosen: _Trial, trials: list[_Trial], tie: float
+) -> tuple[str | None, FloatArray]:
+    """What a kept set-up effect leaves open about its own line: the other set-up effect of the
+    same line (a cosine misalignment for an Abbe offset, or the reverse) that passes and
+    predicts the held-out data as well (within ``tie``). A line whose angular errors change
+    nearly linearly along it reads a lever arm almost as a scale; the plan cannot tell whether
+    its reflector sits off the beam or its beam is tilted.
+
+    Returned as :func:`_interchangeable`: a warning naming the rival, with the errors fitted
+    beside it where they differ by more than :data:`UNSETTLED_RATIO` stated standard
+    uncertainties, and the differences of the errors' parameters (one row, or none)."""
+    effect = chosen.finding.effect
+    delta = np.zeros_like(chosen.refit.model.parameters)
+    if not isinstance(effect, (AbbeOffset, Cosine)):
+        return None, delta
+    rivals = [
+        trial
+        for trial in trials
+        if trial is not chosen
+        and trial.ok
+        and isinstance(trial.finding.effect, (AbbeOffset, Cosine))
+        and type(trial.finding.effect) is not type(effect)
+        and trial.finding.effect.line == effect.line  # type: ignore[attr-defined]
+        and trial.score <= chosen.score * (1.0 + tie)
+    ]
+    if not rivals:
+        return None, delta
+    trial, beyond, deltas = _rival_moves(chosen, rivals)
+    said = _moves_said(trial, beyond) or (
+        "; the errors fitted beside them agree within their uncertainties"
+    )
+    return (
+        f"{effect.label} was kept, but {trial.finding.effect.label} predicts the held-out data "
+        f"as well (cross-validated RMS {chosen.score:.4g} kept, {trial.score:.4g}): this plan "
+        f"cannot tell whether the line's optics sit off the beam or its beam is tilted{said}. "
+        "Check the line's alignment, or measure it again with the optics at another offset"
     ), deltas
 
 
