@@ -28,6 +28,8 @@ read the method), for behaviours its suite showed missing:
   makes another held-out line a wild extrapolation is not excused the error there (a cosine
   error, not an Abbe offset of the same line), and when the two set-ups of a line predict as
   well, the report says the plan cannot tell them apart;
+- bumps narrower than every line's target spacing are found at their places (the scan that
+  places a bump tries widths below the spacing);
 - a bump narrower than the spacing of most lines is found where the line that sees it best
   resolves it, not elsewhere with a finer function beside it;
 - a right effect is not refused for a change of size between runs that the 21 errors absorb
@@ -333,6 +335,28 @@ def test_a_bump_a_finer_function_follows_as_well_is_kept_as_a_bump() -> None:
     outcome = run_blind(4043)
     assert outcome.kept == outcome.expected == {("abbe_offset", "z_linear"), ("local", "Z in Y")}
     assert outcome.function_error["EYZ"] < 0.35
+
+
+def test_bumps_narrower_than_the_target_spacing_are_found_at_their_places() -> None:
+    # twelve-line plan: bumps of EYY at 291 mm (FWHM 14 mm, −3.3 µm) and of EZZ at 253 mm
+    # (FWHM 12 mm, −4.9 µm), the diagonals' targets every 16 mm. Scanned only with Gaussians as
+    # wide as that spacing, the bump of Y was placed at 323 mm, its free profile fitted to
+    # 414 µm and refused as implausible: the bump was missed. Scanned with narrower ones too,
+    # both are found where they are
+    report, truth = _loop(18110)
+    locals_ = {
+        (e["parameters"]["direction"], e["axis"]): e["parameters"]["center_mm"]
+        for e in report["effects"]
+        if e["kind"] == "local"
+    }
+    assert len(report["effects"]) == 2
+    true = {
+        (e["parameters"]["direction"], e["axis"]): e["parameters"]["centre_mm"]
+        for e in truth["effects"]
+    }
+    assert set(locals_) == set(true) == {("Y", "Y"), ("Z", "Z")}
+    for key, centre in true.items():
+        assert abs(locals_[key] - centre) < 5.0
 
 
 def test_a_bump_the_linear_line_resolves_is_found_at_its_place() -> None:
