@@ -2186,11 +2186,15 @@ def _rival_moves(
     return trial, [m for m in moved if m[0] > UNSETTLED_RATIO], rows
 
 
-def _moves_said(trial: _Trial, beyond: list[tuple[float, str, float]]) -> str:
+#: The clause of a set-up doubt whose rival moves no error beyond its uncertainty.
+AGREE = "; the errors fitted beside them agree within their uncertainties"
+
+
+def _moves_said(trial: _Trial, beyond: list[tuple[float, str, float]], none_moved: str = "") -> str:
     """The clause of a warning that names the errors ``trial`` moves beyond their uncertainty
-    (empty when it moves none)."""
+    (``none_moved`` when it moves none)."""
     if not beyond:
-        return ""
+        return none_moved
     return (
         f"; the errors fitted beside {trial.finding.effect.label} differ: "
         f"{_moved_text(beyond)}, and the stated uncertainties of the errors include the "
@@ -2291,9 +2295,7 @@ def _interchangeable(
         return None, delta
     trial, beyond, deltas = _rival_moves(chosen, rivals)
     lines = _and([t.finding.effect.line_name for t in rivals])  # type: ignore[attr-defined]
-    said = _moves_said(trial, beyond) or (
-        "; the errors fitted beside them agree within their uncertainties"
-    )
+    said = _moves_said(trial, beyond, AGREE)
     return (
         f"{effect.label} was kept, but the same on line{'s' if len(rivals) > 1 else ''} "
         f"{lines} fits the readings as well (cross-validated RMS {chosen.score:.4g} kept, "
@@ -2331,9 +2333,7 @@ def _which_set_up(
     if not rivals:
         return None, delta
     trial, beyond, deltas = _rival_moves(chosen, rivals)
-    said = _moves_said(trial, beyond) or (
-        "; the errors fitted beside them agree within their uncertainties"
-    )
+    said = _moves_said(trial, beyond, AGREE)
     return (
         f"{effect.label} was kept, but {trial.finding.effect.label} predicts the held-out data "
         f"as well (cross-validated RMS {chosen.score:.4g} kept, {trial.score:.4g}): this plan "
@@ -2403,7 +2403,9 @@ def _other_kinds(proposals: list[Finding], tried: list[_Trial], count: int) -> l
     out: list[Finding] = []
     for finding in proposals:
         kind = finding.effect.kind
-        if finding.effect.line_index is None and kind not in seen and len(out) < count:
+        if len(out) == count:
+            break
+        if finding.effect.line_index is None and kind not in seen:
             seen.add(kind)
             out.append(finding)
     return out
