@@ -85,7 +85,8 @@ class LoopOptions:
 
     alpha : family-wise false-alarm level for proposing an effect (Bonferroni over all tests).
     margin : relative improvement of the cross-validated RMS an effect must bring to be kept
-        (and must still bring in the backward pass to stay).
+        (and must still bring in the backward pass to stay); a richer variant of one structure
+        must bring it over the leaner variant too.
     generalisation : share of the fitted mean-square gain the held-out data must confirm.
     candidates_per_step : how many of the strongest findings are refitted together; the best
         one that passes is kept.
@@ -2240,8 +2241,14 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | 
     delta = trial.refit.model.parameters - chosen.refit.model.parameters
     if not beyond:
         return None, delta
+    # a rival better than the kept fit is a richer variant refused by the margin
+    compared = (
+        "as well as"
+        if trial.score >= chosen.score
+        else "better, by less than the margin a richer variant must earn, than"
+    )
     return (
-        f"{trial.finding.effect.label} predicts the held-out data as well as the kept "
+        f"{trial.finding.effect.label} predicts the held-out data {compared} the kept "
         f"{effect.label} (cross-validated RMS {trial.score:.4g} and {chosen.score:.4g}), and the "
         f"errors fitted beside the two differ: {_moved_text(beyond)}. This plan does not settle "
         "the surface's shape; the stated uncertainties of the errors include that difference"

@@ -46,8 +46,9 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
         "--margin",
         type=float,
         default=LoopOptions().margin,
-        help="relative cross-validated improvement an effect must bring to be kept "
-        "(default %(default)s)",
+        help="relative cross-validated improvement an effect must bring to be kept, and a "
+        "richer variant of a kept structure (a surface of higher order, ...) over the leaner "
+        "one (default %(default)s)",
     )
     parser.add_argument(
         "--drop-outliers",
