@@ -2425,7 +2425,8 @@ def _kept_instead(chosen: _Trial, trial: _Trial, margin: float) -> str:
         f"cross-validated RMS {chosen.score:.4g} against {trial.score:.4g} over the readings "
         "every candidate of the step predicts"
     )
-    if chosen.score <= trial.score:
+    variant = _variant_of(trial.finding.effect, chosen.finding.effect)
+    if not variant or _complexity(trial) <= _complexity(chosen) or chosen.score <= trial.score:
         return f"; {chosen.finding.effect.label} was kept instead ({figures})"
     return (
         f"; {chosen.finding.effect.label} was kept instead: the terms this one adds to it do not "
