@@ -2382,7 +2382,7 @@ def _simplest_best(passing: list[_Trial], tie: float, margin: float) -> _Trial |
     parameters (fitted and searched): a drift driven by the logged temperature before one whose
     time constant had to be estimated, when both explain alike.
 
-    A richer variant of one structure (:func:`_variant_of`: a surface of higher order or with
+    A richer variant of one structure (:func:`_richer`: a surface of higher order or with
     lever-arm terms, a position-dependent reversal, a drift whose time constant is estimated) is
     kept over a leaner one only when it betters the leaner one's error by ``margin``, as any
     effect must better the model without it: the terms it adds are an effect of their own. Held
@@ -2392,10 +2392,7 @@ def _simplest_best(passing: list[_Trial], tie: float, margin: float) -> _Trial |
         t
         for t in passing
         if not any(
-            _variant_of(t.finding.effect, other.finding.effect)
-            and _complexity(other) < _complexity(t)
-            and t.score > other.score * (1.0 - margin)
-            for other in passing
+            _richer(t, other) and t.score > other.score * (1.0 - margin) for other in passing
         )
     ]
     if not earned:
@@ -2408,15 +2405,19 @@ def _simplest_best(passing: list[_Trial], tie: float, margin: float) -> _Trial |
     )
 
 
-def _variant_of(one: Effect, other: Effect) -> bool:
-    """Whether two effects are variants of one structure: a surface of the same direction and
-    pair of axes, or a reversal or a thermal drift of the same axis."""
+def _richer(trial: _Trial, than: _Trial) -> bool:
+    """Whether ``trial`` is a richer variant of the structure ``than`` fits (more parameters): a
+    surface of the same direction and pair of axes, or a reversal or a thermal drift of the same
+    axis."""
+    one, other = trial.finding.effect, than.finding.effect
     if isinstance(one, CrossAxis):
-        return isinstance(other, CrossAxis) and _surface_place(one) == _surface_place(other)
-    return isinstance(one, (Reversal, ThermalDrift)) and (one.kind, one.axis) == (
-        other.kind,
-        other.axis,
-    )
+        variant = isinstance(other, CrossAxis) and _surface_place(one) == _surface_place(other)
+    else:
+        variant = isinstance(one, (Reversal, ThermalDrift)) and (one.kind, one.axis) == (
+            other.kind,
+            other.axis,
+        )
+    return variant and _complexity(trial) > _complexity(than)
 
 
 def _kept_instead(chosen: _Trial, trial: _Trial, margin: float) -> str:
@@ -2425,8 +2426,7 @@ def _kept_instead(chosen: _Trial, trial: _Trial, margin: float) -> str:
         f"cross-validated RMS {chosen.score:.4g} against {trial.score:.4g} over the readings "
         "every candidate of the step predicts"
     )
-    variant = _variant_of(trial.finding.effect, chosen.finding.effect)
-    if not variant or _complexity(trial) <= _complexity(chosen) or chosen.score <= trial.score:
+    if not _richer(trial, chosen) or chosen.score <= trial.score:
         return f"; {chosen.finding.effect.label} was kept instead ({figures})"
     return (
         f"; {chosen.finding.effect.label} was kept instead: the terms this one adds to it do not "
