@@ -18,7 +18,7 @@ from ..compensation import (
     ModelSource,
     export_model,
 )
-from ..compensation.export import FORMAT_HELP
+from ..compensation.export import FORMAT_HELP, SELF_EXACT_METHODS
 from ..compensation.ncprogram import WORK_OFFSETS, RewriteOptions
 from ..compensation.source import ErrorSource
 from ..machine import AXES
@@ -233,6 +233,13 @@ def _text(result: ExportResult) -> str:
     lines += [f"convention: {c}" for c in result.convention]
     lines.append("predicted compensation rates (RMS-based, % per direction X / Y / Z):")
     for name, method in result.verification.methods.items():
+        if name in SELF_EXACT_METHODS:
+            # the model's inverse against the model: 100 % by construction, no prediction
+            lines.append(
+                f"  {name:<30} {'not predicted':<21}   {method.description} (the model's own "
+                "inverse: exact on the model by construction; rated only by re-measuring)"
+            )
+            continue
         rates = method.rates.rms_percent
         values = " / ".join(f"{rates[a]:5.1f}" for a in AXES)
         lines.append(f"  {name:<30} {values}   {method.description}")

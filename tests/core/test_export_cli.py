@@ -70,6 +70,9 @@ def test_export_text_output(project: Path, tmp_path, capsys) -> None:
     text = capsys.readouterr().out
     assert "AX_EEC.INI" in text and "tool offset assumed: 0 0 200 mm" in text
     assert "predicted compensation rates" in text
+    # the model's inverse against the model is 100 % by construction: no predicted rate
+    (row,) = [line for line in text.splitlines() if line.strip().startswith("nc_rewriting")]
+    assert "not predicted" in row and "100.0" not in row
 
 
 def test_export_gcode_with_work_offsets(project: Path, tmp_path, capsys) -> None:
