@@ -109,7 +109,8 @@ class LoopRun:
             ("identifications", "main"): IdentificationRecord.from_identification(
                 "main", loop.base, identify_options),
             ("identifications", "loop"): IdentificationRecord.from_identification(
-                "loop", loop.final, identify_options, loop_identifiability(loop)),
+                "loop", loop.final, loop.identify_options(identify_options),
+                loop_identifiability(loop)),
             ("loops", "main"): LoopRecord.from_loop("main", loop),
         }
         light = replace(loop, base=without_system(loop.base), final=without_system(loop.final))

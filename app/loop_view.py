@@ -211,11 +211,13 @@ class LoopView(View):
                 else:
                     rejected.append(str(entry["label"]))
             base = self.document.identification(record.base)
-            initial = stored_model(self.document.project, record.base)
+            # the loop's own fit: its basis spacing, chosen by cross-validation, and its model
+            final = self.document.identification(record.final)
+            initial = stored_model(self.document.project, record.final)
         except (UserError, KeyError) as exc:
             self.task_failed(f"cannot refit: {exc}")
             return
-        options = replace(identify_options(base.options),
+        options = replace(identify_options(final.options),
                           budget=jobs.budget_of(self.document.project))
         redundant = list(base.identifiability.get("redundant_lines", []))
         self.summary.setText("refitting…")
@@ -312,6 +314,9 @@ class LoopView(View):
         text = (f"RMS {um(rms.get('before_loop'))} → {um(rms.get('after_loop'))} {unit}, "
                 f"cross-validated {um(cv.get('before_loop'))} → {um(cv.get('after_loop'))} "
                 f"{unit} ({cv.get('method', '?')})")
+        basis = report.get("basis")
+        if basis:
+            text += f"; basis every {basis['spacing_mm']:g} mm ({basis['chosen_by']})"
         if record.decisions:
             text += (f"; refitted by hand: RMS {um(record.decisions.get('rms_um_after'))} "
                      f"{unit}, CV {um(record.decisions.get('cv_rms_um_after'))} {unit}")

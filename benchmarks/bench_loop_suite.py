@@ -86,6 +86,7 @@ def _one(seed: int, generator: str = "independent") -> dict:
             for e in outcome.effects_report
             if "shared_with_errors" in e
         ],
+        "basis_mm": outcome.basis_mm,
         "loop_s": outcome.seconds,
         "total_s": time.perf_counter() - started,
     }
@@ -278,6 +279,11 @@ def main() -> int:
         f"where an effect was kept but the set is wrong ({len(wrong)} scenarios): every "
         f"function and squareness within {HONEST_RATIO:g} stated standard uncertainties of the "
         f"truth in {sum(r['band_ratio'] <= HONEST_RATIO for r in wrong)}"
+    )
+    spacings = Counter(r["basis_mm"] for r in results)
+    print(
+        "basis spacing chosen by cross-validation: "
+        + ", ".join(f"{k:g} mm in {n}" for k, n in sorted(spacings.items()))
     )
     loop_times = sorted(r["loop_s"] for r in results)
     print(

@@ -384,6 +384,20 @@ def summary_table(result: Mapping[str, Any]) -> str:
             f"   {'every line, angular at σ exchange':<{width}} {'':6} {'':6}"
             f"   {judged['before_loop']:6.3f} {judged['after_loop']:6.3f}"
         )
+    basis = result.get("basis")
+    if basis:
+        tried = ", ".join(f"{t['spacing_mm']:g} mm {t['cv_rms_um']:.3f}" for t in basis["tried"])
+        refused = "".join(
+            f"; {t['spacing_mm']:g} mm refused: it leaves a systematic residual on "
+            f"{', '.join(t['leaves_structure_on'])}"
+            for t in basis["tried"]
+            if t.get("leaves_structure_on")
+        )
+        how = f" (CV RMS µm: {tried}{refused})" if basis["chosen_by"] == "cross-validation" else ""
+        lines.append(
+            f"basis of the 21 errors: cubic B-splines every {basis['spacing_mm']:g} mm, "
+            f"{'chosen by cross-validation' if how else 'as set'}{how}"
+        )
     if result["effects"]:
         lines.append("")
         lines.append("effects kept:")

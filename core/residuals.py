@@ -111,6 +111,9 @@ class LoopOptions:
     time_constants_s : the range over which a time-driven drift's τ is estimated.
     cross_axis_orders, cross_axis_lever_orders : the total degrees tried for a cross-axis
         surface without and with lever-arm terms (:class:`CrossAxis`; chosen by cross-validation).
+    spacings_mm : the breakpoint spacings (mm) of the 21 errors' cubic B-spline basis that the
+        loop chooses among by cross-validation once it has chosen the effects (at the
+        identification's own ``identify.spacing_mm``, always among them). Empty: that one alone.
     """
 
     alpha: float = 1e-4
@@ -128,6 +131,7 @@ class LoopOptions:
     time_constants_s: tuple[float, float] = (300.0, 7 * 86400.0)
     cross_axis_orders: tuple[int, ...] = (4, 5, 6, 8)
     cross_axis_lever_orders: tuple[int, ...] = (3, 4)
+    spacings_mm: tuple[float, ...] = (50.0, 75.0, 100.0, 150.0)
     plausibility: Plausibility = field(default_factory=Plausibility)
     identify: IdentifyOptions = field(default_factory=IdentifyOptions)
 
@@ -183,6 +187,42 @@ class Step:
 
 
 @dataclass(frozen=True)
+class SpacingChoice:
+    """The breakpoint spacing of the 21 errors' B-spline basis and how it was chosen: per
+    spacing tried (mm), the cross-validated RMS over the displacement lines (µm) and over every
+    line with angular readings on the displacement scale (what the choice is judged by), each
+    over the readings both it and ``reference_mm`` predict (:func:`_choose_spacing`)."""
+
+    spacing_mm: float
+    reference_mm: float
+    cv_rms_um: dict[float, float]
+    cv_rms_all_lines: dict[float, float]
+    method: str
+    #: spacings that predict better but leave these lines a systematic residual the reference
+    #: spacing explains
+    refused: dict[float, tuple[str, ...]] = field(default_factory=dict)
+    #: moves of the 21 errors' parameters (rows, in the chosen basis) to the fits of spacings
+    #: that predict as well: what the plan does not settle about the basis
+    doubt: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+
+    def report(self) -> dict[str, object]:
+        return {
+            "spacing_mm": self.spacing_mm,
+            "chosen_by": "cross-validation" if len(self.cv_rms_um) > 1 else "set",
+            "method": self.method,
+            "tried": [
+                {
+                    "spacing_mm": k,
+                    "cv_rms_um": v,
+                    "cv_rms_all_lines": self.cv_rms_all_lines[k],
+                    **({"leaves_structure_on": list(self.refused[k])} if k in self.refused else {}),
+                }
+                for k, v in sorted(self.cv_rms_um.items())
+            ],
+        }
+
+
+@dataclass(frozen=True)
 class Unexplained:
     """Structure no effect explains: where, how large, and what it follows.
 
@@ -215,10 +255,18 @@ class LoopResult:
     #: per kept effect (as ``final.effects``): what of it the plan reads exactly as a change of
     #: the 21 errors (:class:`Shared`)
     shared: tuple[Shared, ...]
+    #: the basis spacing the 21 errors were identified with, and how it was chosen
+    spacing: SpacingChoice | None = None
 
     @property
     def kept(self) -> tuple[Effect, ...]:
         return tuple(self.final.effects)  # type: ignore[arg-type]
+
+    def identify_options(self, asked: IdentifyOptions) -> IdentifyOptions:
+        """``asked`` with the basis spacing the loop identified the 21 errors with."""
+        if self.spacing is None:
+            return asked
+        return replace(asked, spacing_mm=self.spacing.spacing_mm)
 
     def effects_report(self) -> list[dict[str, object]]:
         out: list[dict[str, object]] = []
@@ -313,6 +361,7 @@ class LoopResult:
                 for u in self.unexplained
             ],
             "warnings": list(self.warnings),
+            **({"basis": self.spacing.report()} if self.spacing is not None else {}),
         }
 
 
@@ -1998,13 +2047,18 @@ def close_loop(
     cv_base = cross_validate(base.system, readings, redundant)
     warnings = _cv_warnings(readings, cv_base, redundant)
     why_not = _can_cross_validate(readings, cv_base)
+    spacing = SpacingChoice(
+        options.identify.spacing_mm, options.identify.spacing_mm, {}, {}, cv_base.method
+    )
     if why_not is not None:
         warnings.append(
             f"the loop cannot cross-validate this plan ({why_not}): no effect is tested; measure "
             "more lines or longer lines to close the loop"
         )
         leftover = unexplained(base, cv_base, options.alpha)
-        return LoopResult(base, base, cv_base, cv_base, (), tuple(leftover), tuple(warnings), ())
+        return LoopResult(
+            base, base, cv_base, cv_base, (), tuple(leftover), tuple(warnings), (), spacing
+        )
     fit = _Fitter(measurement, readings, options, redundant, cancel)
     state = _State(base, cv_base)
     for _ in range(AUDIT_ROUNDS):
@@ -2018,6 +2072,10 @@ def close_loop(
         # what the taken-out effect held is the others' again: every candidate is scored anew
         state.refused.clear()
     current, cv, kept = state.current, state.cv, state.kept
+    report(progress, 0.9, "choosing the basis spacing by cross-validation")
+    current, cv, spacing = _choose_spacing(
+        measurement, readings, options, redundant, current, cv, cancel
+    )
     warnings += state.warnings
     ambiguous, aliased, steps = state.ambiguous, state.aliased, state.steps
     # said only of surfaces and cycles the final model holds
@@ -2034,13 +2092,122 @@ def close_loop(
     warnings += _shared_warnings(current, shared)
     report(progress, 0.95, "looking for what is still unexplained")
     leftover = unexplained(current, cv, options.alpha)
-    current = _with_shape_doubt(
-        current, [state.shape_doubt[e.key] for e in kept if e.key in state.shape_doubt]
-    )
+    doubts = [state.shape_doubt[e.key] for e in kept if e.key in state.shape_doubt]
+    if spacing.spacing_mm != spacing.reference_mm:
+        doubts = [_in_basis(np.atleast_2d(d), state.current.model, current.model) for d in doubts]
+    current = _with_shape_doubt(current, [*doubts, spacing.doubt])
     report(progress, 1.0, "loop closed")
     return LoopResult(
-        base, current, cv_base, cv, tuple(steps), tuple(leftover), tuple(warnings), shared
+        base, current, cv_base, cv, tuple(steps), tuple(leftover), tuple(warnings), shared, spacing
     )
+
+
+def _choose_spacing(
+    measurement: Measurement,
+    readings: Readings,
+    options: LoopOptions,
+    redundant: Sequence[str],
+    fit: Identification,
+    cv: CrossValidation,
+    cancel: CancelToken | None = None,
+) -> tuple[Identification, CrossValidation, SpacingChoice]:
+    """The basis spacing of ``options.spacings_mm`` whose 21 errors, fitted with the effects the
+    loop kept, predict the held-out readings best (DESIGN: the default basis is chosen by
+    cross-validation), with its fit and cross-validation. ``fit`` and ``cv`` are the loop's
+    final fit, at the identification's own spacing: the reference every other is compared with
+    over the readings both predict (:func:`_compared`), the same lines or blocks held out (the
+    plan's ``redundant`` lines decide which).
+
+    A finer basis follows the guideways' shape more closely and the noise more; a coarser one
+    averages the noise over more targets and misses what bends between its breakpoints: which
+    costs more depends on the machine and the noise. The choice comes after the effects, so that
+    a screw cycle or a drift the model does not hold yet is not taken for noise to be averaged
+    (the effects themselves are chosen at the identification's spacing, whose shapes the loop's
+    thresholds were set on). From the reference the spacings are tried coarser, then finer,
+    each way while the error keeps falling. A trial is a first-order fit (the nonlinear
+    refinement moves the prediction at second order of the errors, far below what tells two
+    spacings apart). The best is identified again in full and kept unless it leaves a line
+    with a systematic residual (:func:`unexplained`) that the reference explains: held-out
+    readings weigh the noise of every run, that test the mean of the runs, and a basis that
+    averages the noise away while it misses a bend the runs agree on is not kept for the
+    first (the next best is tried instead).
+    """
+    reference = options.identify.spacing_mm
+    effects = list(fit.effects)
+    identify_options = replace(options.identify, redundancy=False)
+    um = {reference: _compared(cv, cv, fit, um=True, other_fit=fit)[0]}
+    rms = {reference: _compared(cv, cv, fit, other_fit=fit)[0]}
+    ratio = {reference: 1.0}
+    fits = {reference: fit}
+    coarser = sorted(s for s in set(options.spacings_mm) if s > reference)
+    finer = sorted((s for s in set(options.spacings_mm) if s < reference), reverse=True)
+    for way in (coarser, finer):
+        best = 1.0
+        for spacing_mm in way:
+            check(cancel)
+            first_order = replace(identify_options, spacing_mm=spacing_mm, refine=False)
+            trial = identify(
+                measurement, first_order, effects=effects, readings=readings, cancel=cancel
+            )
+            trial_cv = cross_validate(trial.system, readings, redundant)
+            fits[spacing_mm] = trial
+            mine, rms[spacing_mm], _ = _compared(cv, trial_cv, fit, other_fit=trial)
+            um[spacing_mm] = _compared(cv, trial_cv, fit, um=True, other_fit=trial)[1]
+            ratio[spacing_mm] = rms[spacing_mm] / mine if mine > 0 else np.inf
+            if ratio[spacing_mm] >= best:
+                break
+            best = ratio[spacing_mm]
+    chosen, refused = reference, {}
+    better = sorted((s for s in ratio if ratio[s] < 1.0), key=lambda s: ratio[s])
+    clean = _unexplained_lines(fit, cv, options.alpha) if better else set()
+    for spacing_mm in better:
+        check(cancel)
+        trial = identify(
+            measurement,
+            replace(identify_options, spacing_mm=spacing_mm),
+            effects=effects,
+            readings=readings,
+            cancel=cancel,
+        )
+        trial_cv = cross_validate(trial.system, readings, redundant)
+        left = _unexplained_lines(trial, trial_cv, options.alpha) - clean
+        if not left:
+            fit, cv, chosen = trial, trial_cv, spacing_mm
+            break
+        refused[spacing_mm] = tuple(sorted(left))
+    # spacings that predict as well (within the tie) are fits the plan cannot rank below the
+    # chosen one: their moves of the 21 errors widen its covariance (:func:`_with_shape_doubt`)
+    rivals = [
+        fits[s]
+        for s in ratio
+        if s != chosen and s not in refused and ratio[s] <= ratio[chosen] * (1.0 + options.tie)
+    ]
+    moves = [_in_basis(r.model.parameters[None, :], r.model, fit.model)[0] for r in rivals]
+    doubt = np.reshape([m - fit.model.parameters for m in moves], (-1, fit.model.parameter_count))
+    return fit, cv, SpacingChoice(chosen, reference, um, rms, cv.method, refused, doubt)
+
+
+def _unexplained_lines(fit: Identification, cv: CrossValidation, alpha: float) -> set[str]:
+    """The lines :func:`unexplained` reports on ``fit``."""
+    where = (u.where.removeprefix("line ") for u in unexplained(fit, cv, alpha))
+    return {w.split(" at ")[0].split(", ")[0] for w in where}
+
+
+def _in_basis(moves: FloatArray, old: ErrorModel, new: ErrorModel) -> FloatArray:
+    """Moves (rows) of ``old``'s parameters as the nearest moves of ``new``'s, whose functions
+    have other bases: each function's change least-squares on a fine grid of its stroke, the
+    squareness errors as they are."""
+    out = np.zeros((len(moves), new.parameter_count))
+    was, now = old.parameter_slices, new.parameter_slices
+    for eid in AXIS_ERROR_IDS:
+        low, high = old.machine.stroke(str(ERROR_INFO[eid].axis))
+        q = np.linspace(low, high, 201)
+        change = old.functions[eid].basis.design(q) @ moves[:, was[eid]].T
+        design = new.functions[eid].basis.design(q)
+        out[:, now[eid]] = np.linalg.lstsq(design, change, rcond=None)[0].T
+    for eid in SQUARENESS_IDS:
+        out[:, now[eid]] = moves[:, was[eid]]
+    return out
 
 
 def _with_shape_doubt(fit: Identification, deltas: Sequence[FloatArray]) -> Identification:

@@ -367,11 +367,14 @@ def loop_result_trees(
     loop: LoopResult, options: IdentifyOptions | None = None
 ) -> dict[tuple[str, str], dict[str, Any]]:
     """Every tree a closed loop stores: the identifications before ("main") and after ("loop")
-    with their residuals, and the loop ("main") with every effect it tried."""
+    with their residuals, and the loop ("main") with every effect it tried. ``options`` are the
+    identification's; the loop's own states the basis spacing the loop chose."""
     return {
         ("identifications", "main"): identification_result_tree(loop.base, options),
         ("identifications", "loop"): identification_result_tree(
-            loop.final, options, loop_identifiability(loop)
+            loop.final,
+            loop.identify_options(options or IdentifyOptions()),
+            loop_identifiability(loop),
         ),
         ("loops", "main"): loop_tree(loop),
     }

@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from ..calibrate import (
@@ -51,12 +52,40 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
         "one (default %(default)s)",
     )
     parser.add_argument(
+        "--spacing",
+        type=_spacing,
+        metavar="MM",
+        help="breakpoint spacing of the 21 errors' cubic B-spline basis, mm (default: the one of "
+        f"{', '.join(f'{s:g}' for s in LoopOptions().spacings_mm)} mm that cross-validates best)",
+    )
+    parser.add_argument(
         "--drop-outliers",
         action="store_true",
         help="leave out readings flagged as outliers (they are only flagged otherwise)",
     )
     parser.add_argument("--json", action="store_true", help="print report.json to stdout")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def _spacing(text: str) -> float:
+    """``--spacing``: a positive length in mm."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of mm") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text} mm: give a spacing above 0 mm, e.g. 50")
+    return value
+
+
+def loop_options(args: argparse.Namespace) -> LoopOptions:
+    """The loop's options from the command line: ``--spacing`` fixes the basis."""
+    options = LoopOptions(margin=args.margin)
+    if args.spacing is None:
+        return options
+    return replace(
+        options, spacings_mm=(), identify=replace(options.identify, spacing_mm=args.spacing)
+    )
 
 
 def run(
@@ -77,7 +106,7 @@ def run(
         export_formats=tuple(args.formats or ("linuxcnc", "csv")),
         max_correction_um=correction_limit(args),
         files_root=getattr(args, "files_root", None),
-        loop=LoopOptions(margin=args.margin),
+        loop=loop_options(args),
         sensitivity=not args.no_sensitivity,
         drop_outliers=args.drop_outliers,
     )

@@ -72,6 +72,12 @@ def test_the_loop_runs_from_the_gui_and_the_user_can_reject_an_effect(
     document = window.document
     assert document.results("loops") == ["main"]
     assert set(document.results("identifications")) == {"main", "loop"}
+    # the basis the loop chose by cross-validation is said, and its identification stores it
+    basis = document.loop("main").report["basis"]
+    assert f"basis every {basis['spacing_mm']:g} mm ({basis['chosen_by']})" in view.summary.text()
+    assert document.identification("loop").options["spacing_mm"] == basis["spacing_mm"]
+    spacing = small_loop_options.identify.spacing_mm
+    assert document.identification("main").options["spacing_mm"] == spacing
 
     # the same loop, run by the core on the same data when the session project was made
     expected = LoopRecord.from_tree("main", Project.open(small_project_file).result("loops",

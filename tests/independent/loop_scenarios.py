@@ -290,6 +290,8 @@ class Outcome:
     #: on an outside scenario: the peak of what the 21-error fit leaves of the effect outside
     #: every catalogue (alone, no noise), in units of the noise, as ``visibility``
     outside_visibility: float = 0.0
+    #: the breakpoint spacing (mm) of the 21 errors' basis the loop chose
+    basis_mm: float | None = None
 
     @property
     def visible_expected(self) -> set[tuple[str, str]]:
@@ -439,6 +441,7 @@ def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
         material_logged,
         [u["where"] for u in report["unexplained"]],
         max(outside.values(), default=0.0) / noise,
+        report.get("basis", {}).get("spacing_mm"),
     )
 
 

@@ -250,4 +250,5 @@ def run_blind(seed: int) -> Outcome:
             ),
             default=0.0,
         ),
+        report.get("basis", {}).get("spacing_mm"),
     )
