@@ -1135,7 +1135,18 @@ def unexplained(
     cross_validation: CrossValidation | None = None,
     alpha: float = 1e-4,
 ) -> list[Unexplained]:
-    """Lines whose residual is larger than their repeatability allows, and what it follows.
+    """Lines whose residual is larger than their repeatability allows, and what it follows
+    (:func:`_unexplained_by_line`)."""
+    return [u for _, u in _unexplained_by_line(identification, cross_validation, alpha)]
+
+
+def _unexplained_by_line(
+    identification: Identification,
+    cross_validation: CrossValidation | None = None,
+    alpha: float = 1e-4,
+) -> list[tuple[int, Unexplained]]:
+    """Lines (with their indices) whose residual is larger than their repeatability allows,
+    and what it follows.
 
     For each line and target the mean residual over runs is compared with σ/√runs (a χ² test
     over the targets for a structure spread along the line, and the largest target mean,
@@ -1155,7 +1166,7 @@ def unexplained(
         # sized by the held-out residual where it is a prediction, by the fit's elsewhere
         predicted, _ = _predicted(cross_validation, identification)
         held_out = np.where(predicted, cross_validation.residual, held_out)
-    out = []
+    out: list[tuple[int, Unexplained]] = []
     reported = set()
     count = len(readings.lines)
     for index, line in enumerate(readings.lines):
@@ -1194,22 +1205,21 @@ def unexplained(
             magnitude = float(np.sqrt(np.mean(r**2)))
             follows = "time"
         reported.add(index)
-        out.append(
-            Unexplained(
-                where=f"line {line.name} at {position:.1f} mm",
-                description=(
-                    f"systematic residual on {line.spec.quantity} line {line.name}: RMS "
-                    f"{rms:.3g} {unit} over its targets, peak {magnitude:.3g} {unit} at "
-                    f"{position:.1f} mm, beyond its repeatability ({sigma:.3g} {unit}); it "
-                    f"follows mostly {_FOLLOWS[follows]} (position {shares['position']:.0%}, "
-                    f"direction {shares['direction']:.0%}, time {shares['time']:.0%} of it); no "
-                    "effect of the catalogue explains it"
-                ),
-                magnitude_um=magnitude,
-                correlates_with=shares,
-            )
+        item = Unexplained(
+            where=f"line {line.name} at {position:.1f} mm",
+            description=(
+                f"systematic residual on {line.spec.quantity} line {line.name}: RMS "
+                f"{rms:.3g} {unit} over its targets, peak {magnitude:.3g} {unit} at "
+                f"{position:.1f} mm, beyond its repeatability ({sigma:.3g} {unit}); it "
+                f"follows mostly {_FOLLOWS[follows]} (position {shares['position']:.0%}, "
+                f"direction {shares['direction']:.0%}, time {shares['time']:.0%} of it); no "
+                "effect of the catalogue explains it"
+            ),
+            magnitude_um=magnitude,
+            correlates_with=shares,
         )
-    out += [u for index, u in _unsteady(identification, alpha) if index not in reported]
+        out.append((index, item))
+    out += [(i, u) for i, u in _unsteady(identification, alpha) if i not in reported]
     return out
 
 
@@ -2135,8 +2145,10 @@ def _choose_spacing(
     reference = options.identify.spacing_mm
     effects = list(fit.effects)
     identify_options = replace(options.identify, redundancy=False)
-    um = {reference: _compared(cv, cv, fit, um=True, other_fit=fit)[0]}
-    rms = {reference: _compared(cv, cv, fit, other_fit=fit)[0]}
+    displacement = ~readings.is_angular
+    rows, _ = _predicted(cv, fit)
+    um = {reference: _rms(cv.residual, readings, rows & displacement)}
+    rms = {reference: _rms(cv.residual, readings, rows)}
     ratio = {reference: 1.0}
     fits = {reference: fit}
     coarser = sorted(s for s in set(options.spacings_mm) if s > reference)
@@ -2151,8 +2163,11 @@ def _choose_spacing(
             )
             trial_cv = cross_validate(trial.system, readings, redundant)
             fits[spacing_mm] = trial
-            mine, rms[spacing_mm], _ = _compared(cv, trial_cv, fit, other_fit=trial)
-            um[spacing_mm] = _compared(cv, trial_cv, fit, um=True, other_fit=trial)[1]
+            # over the readings both predict (:func:`_compared`), on both scales
+            rows, _ = _rows_compared(cv, trial_cv, fit, trial)
+            mine = _rms(cv.residual, readings, rows)
+            rms[spacing_mm] = _rms(trial_cv.residual, readings, rows)
+            um[spacing_mm] = _rms(trial_cv.residual, readings, rows & displacement)
             ratio[spacing_mm] = rms[spacing_mm] / mine if mine > 0 else np.inf
             if ratio[spacing_mm] >= best:
                 break
@@ -2188,9 +2203,9 @@ def _choose_spacing(
 
 
 def _unexplained_lines(fit: Identification, cv: CrossValidation, alpha: float) -> set[str]:
-    """The lines :func:`unexplained` reports on ``fit``."""
-    where = (u.where.removeprefix("line ") for u in unexplained(fit, cv, alpha))
-    return {w.split(" at ")[0].split(", ")[0] for w in where}
+    """The names of the lines :func:`unexplained` reports on ``fit``."""
+    lines = fit.readings.lines
+    return {lines[index].name for index, _ in _unexplained_by_line(fit, cv, alpha)}
 
 
 def _in_basis(moves: FloatArray, old: ErrorModel, new: ErrorModel) -> FloatArray:
