@@ -41,6 +41,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -1158,8 +1159,6 @@ def _unexplained_by_line(
     cross-validation, place and size come from its held-out residuals: a structure on one line is
     then sized as that line shows it, not as what is left after the fit bent the model towards it.
     """
-    from scipy import special
-
     readings = identification.readings
     held_out = identification.residual
     if cross_validation is not None:
@@ -1170,29 +1169,15 @@ def _unexplained_by_line(
     reported = set()
     count = len(readings.lines)
     for index, line in enumerate(readings.lines):
-        mask = readings.line == index
-        targets = readings.target[mask]
-        r = identification.residual[mask]
-        sigma = float(readings.sigma[mask][0])
-        k = int(targets.max()) + 1
-        sums = np.bincount(targets, weights=r, minlength=k)
-        n = np.bincount(targets, minlength=k)
-        valid = n > 0
-        means = sums[valid] / n[valid]
-        z = means * np.sqrt(n[valid]) / sigma
-        chi2 = float(np.sum(z**2))
-        # the χ² over the targets sees a structure spread along the line; the largest target
-        # mean (Bonferroni over the targets) sees one a few targets wide that χ² dilutes. Each
-        # is held to the time test's level, Bonferroni over the lines and two tests: the three
-        # tests' family-wise false-alarm level is at most 1.5 ``alpha``
-        p_spread = float(special.chdtrc(int(valid.sum()), chi2))
-        p_peak = float(valid.sum() * special.erfc(np.max(np.abs(z)) / np.sqrt(2)))
-        p_position = min(p_spread, p_peak)
-        shares = _shares(readings, identification.residual, index)
-        p_time = _time_p_value(readings, identification.residual, index, sigma)
-        if min(p_position, p_time) * count * 2 >= alpha:
+        test = _line_test(readings, identification.residual, index)
+        # each test held to ``alpha``, Bonferroni over the lines and the two tests (position,
+        # time): the three tests' family-wise false-alarm level is at most 1.5 ``alpha``
+        if min(test.p_position, test.p_time) * count * 2 >= alpha:
             continue
-        sums = np.bincount(targets, weights=held_out[mask], minlength=k)
+        mask = readings.line == index
+        n, valid = test.cells
+        shares = _shares(readings, identification.residual, index)
+        sums = np.bincount(readings.target[mask], weights=held_out[mask], minlength=len(n))
         means = sums[valid] / n[valid]
         worst = int(np.argmax(np.abs(means)))
         position = float(line.data.targets_mm[np.flatnonzero(valid)[worst]])
@@ -1200,9 +1185,9 @@ def _unexplained_by_line(
         magnitude = float(np.max(np.abs(means)))
         rms = float(np.sqrt(np.mean(means**2)))
         follows = max(shares, key=lambda key: shares[key])
-        if p_time * count * 2 < alpha and p_position * count * 2 >= alpha:
+        if test.p_time * count * 2 < alpha and test.p_position * count * 2 >= alpha:
             # nothing locked to position: size it by the spread of the runs instead
-            magnitude = float(np.sqrt(np.mean(r**2)))
+            magnitude = float(np.sqrt(np.mean(test.residual**2)))
             follows = "time"
         reported.add(index)
         item = Unexplained(
@@ -1210,7 +1195,7 @@ def _unexplained_by_line(
             description=(
                 f"systematic residual on {line.spec.quantity} line {line.name}: RMS "
                 f"{rms:.3g} {unit} over its targets, peak {magnitude:.3g} {unit} at "
-                f"{position:.1f} mm, beyond its repeatability ({sigma:.3g} {unit}); it "
+                f"{position:.1f} mm, beyond its repeatability ({test.sigma:.3g} {unit}); it "
                 f"follows mostly {_FOLLOWS[follows]} (position {shares['position']:.0%}, "
                 f"direction {shares['direction']:.0%}, time {shares['time']:.0%} of it); no "
                 "effect of the catalogue explains it"
@@ -1227,6 +1212,45 @@ def _unexplained_by_line(
 PEER_SPREAD_RATIO = 2.0
 #: The peers' spread a line is compared with: this percentile of their variances.
 STEADY_PEERS = 25.0
+
+
+class _LineTest(NamedTuple):
+    """The tests of :func:`_line_test` on one line."""
+
+    #: false-alarm level of a structure locked to position: the smaller of the χ² over the
+    #: targets' means and of their largest (Bonferroni over the targets)
+    p_position: float
+    #: false-alarm level of a drift in time within the line (:func:`_time_p_value`)
+    p_time: float
+    #: the line's repeatability (its readings' σ)
+    sigma: float
+    #: the line's residual
+    residual: FloatArray
+    #: readings per target (all targets up to the last) and which targets have any
+    cells: tuple[IntArray, NDArray[np.bool_]]
+
+
+def _line_test(readings: Readings, residual: FloatArray, index: int) -> _LineTest:
+    """Whether line ``index``'s ``residual`` is larger than its repeatability allows: the mean
+    residual over runs at each target against σ/√runs (a χ² over the targets for a structure
+    spread along the line, the largest target mean for one a few targets wide that χ² dilutes)
+    and the spread of the run means about the line's trend in time. Each test's level for one
+    line, before any correction for the number of lines tested."""
+    from scipy import special
+
+    mask = readings.line == index
+    targets = readings.target[mask]
+    r = residual[mask]
+    sigma = float(readings.sigma[mask][0])
+    k = int(targets.max()) + 1
+    n = np.bincount(targets, minlength=k)
+    valid = n > 0
+    means = np.bincount(targets, weights=r, minlength=k)[valid] / n[valid]
+    z = means * np.sqrt(n[valid]) / sigma
+    p_spread = float(special.chdtrc(int(valid.sum()), float(np.sum(z**2))))
+    p_peak = float(valid.sum() * special.erfc(np.max(np.abs(z)) / np.sqrt(2)))
+    p_time = _time_p_value(readings, residual, index, sigma)
+    return _LineTest(min(p_spread, p_peak), p_time, sigma, r, (n, valid))
 
 
 def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, Unexplained]]:
@@ -2826,7 +2850,12 @@ def _audit(
             if implausible is not None:
                 # plausible when kept, moved past the limits by the effects kept after it
                 reason = f"implausible with every kept effect in the model: {implausible}"
-                failures.append((np.inf, effect, reason))
+                failures.append((2, np.inf, effect, reason))
+                continue
+            if isinstance(effect, (AbbeOffset, Cosine)):
+                why = _leaves_its_line(current, effect, options.alpha)
+                if why is not None:
+                    failures.append((1, np.inf, effect, why))
                 continue
             if effect.kind not in ONE_SHAPE:
                 continue
@@ -2834,10 +2863,10 @@ def _audit(
             change = _Sizes(current, index, contribution).by_line()
             why = _unequal(change, options)
             if why is not None:
-                failures.append((change.spread, effect, why))
+                failures.append((0, change.spread, effect, why))
         if not failures:
             break
-        _, effect, why = max(failures, key=lambda f: f[0])
+        *_, effect, why = max(failures, key=lambda f: f[:2])
         rest = [e for e in kept if e is not effect]
         refit, cv_new = (base, cv_base) if not rest else fit(rest, current.model)
         reason = f"removed by the audit: {why}"
@@ -2849,6 +2878,31 @@ def _audit(
         kept = rest
         current, cv = refit, cv_new
     return current, cv, kept
+
+
+def _leaves_its_line(
+    fit: Identification, effect: AbbeOffset | Cosine, alpha: float
+) -> str | None:
+    """Why a set-up error of one line does not explain that line: with every kept effect in the
+    model, its line's residual is still larger than the line's repeatability allows
+    (:func:`_line_test`). The effect was kept for what its own line shows, so the line is tested
+    alone, at ``alpha`` over the two tests: a misaligned beam or an offset reflector changes a
+    line's scale or adds a term in its angles, and leaves its repeatability; a line that keeps a
+    structure in position or in time beyond it shows something else, of which the set-up error
+    took only the part it could."""
+    names = [line.name for line in fit.readings.lines]
+    if effect.line_name not in names:
+        return None
+    test = _line_test(fit.readings, fit.residual, names.index(effect.line_name))
+    p = min(test.p_position, test.p_time)
+    if p * 2 >= alpha:
+        return None
+    what = "time" if test.p_time < test.p_position else "position"
+    return (
+        f"line {effect.line_name} keeps a residual beyond its repeatability with it in the model "
+        f"(it follows {what}; log10 false alarm {_log10_text(2 * p)}): a set-up error of the line "
+        "explains part of what the line shows, not all of it"
+    )
 
 
 def _later_step(
