@@ -21,7 +21,9 @@
      from held-out lines.
    Every candidate is scored again at every step against the current model: a real effect that
    ranked second is tried again once the first is in the model. A candidate refused before is
-   refitted again only once its evidence has grown (``retry_factor``).
+   refitted again only once its evidence has grown (``retry_factor``), or, when it was refused
+   for a size that varied between runs or along a line, once another effect has been kept: what
+   the model lacked spoiled that size as much as the candidate's own misfit could.
 5. Refine and backward pass: after each keep, every kept cycle's period and drift's τ is
    estimated again with the others in the model (kept when the cross-validated error drops). At
    the end each kept effect is removed in turn; an effect whose removal no longer costs
@@ -97,7 +99,8 @@ class LoopOptions:
         variants of the refused structure (a weaker effect of another kind behind them is not
         lost with them); set-up effects only ever among the strongest.
     retry_factor : a refused candidate is refitted again once its F statistic has grown by this
-        factor (the model around it changed).
+        factor (the model around it changed); one refused for a size that varied
+        (:data:`SPOILED_BY_THE_REST`), once another effect has been kept.
     contender_share : a proposal is refitted in a step's first batch only when the residual sum
         of squares it would remove is at least this share of the strongest proposal's.
     tie : candidates whose cross-validated RMS is within this share of the best are equal; the
@@ -1680,6 +1683,10 @@ VERDICTS = (
     "estimated again",
     "taken out",
 )
+#: Refusals for a size that varies between runs or along a line: another effect the model still
+#: lacks spoils them as much as a misfit of the candidate's own, so a candidate refused for one
+#: is refitted again at the next step after another effect is kept, whatever its F statistic.
+SPOILED_BY_THE_REST = ("not repeatable", "uneven along its line")
 #: A line shows an effect when what the 21 errors cannot absorb of it there reaches 4 σ.
 SHOWN_SIGMA2 = 16.0
 #: Machine effects that one line alone cannot tell from an artefact of that line's set-up.
@@ -1950,6 +1957,9 @@ class _State:
     warnings: list[str] = field(default_factory=list)
     #: F statistic at which a candidate was last refused
     refused: dict[EffectKey, float] = field(default_factory=dict)
+    #: for a candidate last refused for a size that varied (:data:`SPOILED_BY_THE_REST`), the
+    #: effects kept when it was
+    refused_beside: dict[EffectKey, frozenset[EffectKey]] = field(default_factory=dict)
     #: kept surfaces a rival predicts as well
     ambiguous: dict[EffectKey, list[str]] = field(default_factory=dict)
     #: per kept surface or set-up effect: how the 21 errors' parameters move to each rival that
@@ -1978,12 +1988,16 @@ def _forward(
         report(progress, 0.1 + 0.75 * number / (options.max_steps + 1), f"loop step {number}")
         findings, step_warnings = diagnose(current, [e.key for e in kept], options)
         state.warnings += [w for w in step_warnings if w not in state.warnings]
+        beside = frozenset(e.key for e in kept)
         proposals = _distinct(
             [
                 f
                 for f in findings
                 if f.log10_false_alarm < np.log10(options.alpha)
-                and f.f_statistic > options.retry_factor * refused.get(f.effect.key, 0.0)
+                and (
+                    f.f_statistic > options.retry_factor * refused.get(f.effect.key, 0.0)
+                    or state.refused_beside.get(f.effect.key, beside) != beside
+                )
             ]
         )
         chosen: _Trial | None = None
@@ -2017,8 +2031,12 @@ def _forward(
             trials = tried_this_step[-len(trials) :]
             chosen = _simplest_best([t for t in trials if t.ok], options.tie, options.margin)
             for trial in trials:
+                key = trial.finding.effect.key
                 if not trial.ok:
-                    refused[trial.finding.effect.key] = trial.finding.f_statistic
+                    refused[key] = trial.finding.f_statistic
+                    state.refused_beside.pop(key, None)
+                if trial.verdict in SPOILED_BY_THE_REST:
+                    state.refused_beside[key] = beside
                 reason, verdict = trial.reason, trial.verdict
                 if trial.ok and trial is not chosen and chosen is not None:
                     reason += _kept_instead(chosen, trial, options.margin)
@@ -2105,6 +2123,7 @@ def close_loop(
             break
         # what the taken-out effect held is the others' again: every candidate is scored anew
         state.refused.clear()
+        state.refused_beside.clear()
     current, cv, kept = state.current, state.cv, state.kept
     report(progress, 0.9, "choosing the basis spacing by cross-validation")
     current, cv, spacing = _choose_spacing(
