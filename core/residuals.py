@@ -261,6 +261,9 @@ class LoopResult:
     shared: tuple[Shared, ...]
     #: the basis spacing the 21 errors were identified with, and how it was chosen
     spacing: SpacingChoice | None = None
+    #: per kept effect (as ``final.effects``): its rivals of another place that fit as well
+    #: (empty when it has none); each may be the effect the machine has
+    rivals: tuple[dict[str, object], ...] = ()
 
     @property
     def kept(self) -> tuple[Effect, ...]:
@@ -274,11 +277,13 @@ class LoopResult:
 
     def effects_report(self) -> list[dict[str, object]]:
         out: list[dict[str, object]] = []
-        for effect, values, cov, part in zip(
+        rivals = self.rivals or ({},) * len(self.shared)
+        for effect, values, cov, part, rival in zip(
             self.final.effects,
             self.final.effect_parameters,
             self.final.effect_covariances,
             self.shared,
+            rivals,
             strict=True,
         ):
             assert isinstance(effect, Effect)
@@ -293,6 +298,8 @@ class LoopResult:
                     "terms": list(part.terms),
                     "errors": list(part.errors),
                 }
+            if rival.get("effects"):
+                entry["rivals"] = rival
             out.append(entry)
         return out
 
@@ -1965,6 +1972,9 @@ class _State:
     #: per kept surface or set-up effect: how the 21 errors' parameters move to each rival that
     #: fits as well, one per row (zero rows where none moves them beyond their uncertainty)
     shape_doubt: dict[EffectKey, FloatArray] = field(default_factory=dict)
+    #: per kept effect: its rivals of another place that fit as well (report.json
+    #: ``effects[].rivals``: the kept fit's score and :func:`_rival_report` of each)
+    rivals: dict[EffectKey, dict[str, object]] = field(default_factory=dict)
     #: per axis: a kept searched cycle's aliases
     aliased: dict[str, tuple[float, ...]] = field(default_factory=dict)
     number: int = 0
@@ -2051,9 +2061,11 @@ def _forward(
             doubt(chosen, tried_this_step, options.tie)
             for doubt in (_alike, _unsettled, _interchangeable, _which_set_up)
         ]
-        state.shape_doubt[key] = np.vstack([np.atleast_2d(moves) for _, moves in doubts])
+        state.shape_doubt[key] = np.vstack([np.atleast_2d(d.moves) for d in doubts])
         # what the plan leaves open about this keep replaces what an earlier keep left open
-        ambiguous[key] = [text for text, _ in doubts if text is not None]
+        ambiguous[key] = [d.text for d in doubts if d.text is not None]
+        named = [_rival_report(t) for d in doubts for t in d.rivals]
+        state.rivals[key] = {"kept_cv_rms_all_lines": chosen.score, "effects": named}
         effect = chosen.finding.effect
         if chosen.finding.alias_mm:
             aliased[effect.axis] = chosen.finding.alias_mm  # type: ignore[index]
@@ -2150,8 +2162,18 @@ def close_loop(
         doubts = [_in_basis(np.atleast_2d(d), state.current.model, current.model) for d in doubts]
     current = _with_shape_doubt(current, [*doubts, spacing.doubt])
     report(progress, 1.0, "loop closed")
+    rivals = tuple(state.rivals.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
     return LoopResult(
-        base, current, cv_base, cv, tuple(steps), tuple(leftover), tuple(warnings), shared, spacing
+        base,
+        current,
+        cv_base,
+        cv,
+        tuple(steps),
+        tuple(leftover),
+        tuple(warnings),
+        shared,
+        spacing,
+        rivals,
     )
 
 
@@ -2347,7 +2369,20 @@ def _shared_warnings(fit: Identification, shared: Sequence[Shared]) -> list[str]
     return out
 
 
-def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | None, FloatArray]:
+class _Doubt(NamedTuple):
+    """What the plan leaves open about a kept effect (:func:`_alike`, :func:`_unsettled`,
+    :func:`_interchangeable`, :func:`_which_set_up`)."""
+
+    #: the warning, or None when nothing is left open
+    text: str | None
+    #: the differences of the errors' parameters to the rivals that move them, one per row
+    moves: FloatArray
+    #: rivals of another place (a surface's direction and pair, a set-up's line or kind) that
+    #: fit as well: each may be the effect the machine has
+    rivals: tuple[_Trial, ...] = ()
+
+
+def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     """A warning when the kept surface has rivals of another direction or pair of axes that
     predict the held-out data as well (within ``tie``), passing or refused only for showing on
     one line: the plan cannot tell which of them the machine has. Each trial's score is its
@@ -2359,7 +2394,7 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | None
     effect = chosen.finding.effect
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, CrossAxis):
-        return None, delta
+        return _Doubt(None, delta)
     score, place = chosen.score, _surface_place(effect)
     rivals = sorted(
         (
@@ -2374,18 +2409,33 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | None
         key=lambda trial: trial.score,
     )
     if not rivals:
-        return None, delta
+        return _Doubt(None, delta)
     trial, beyond, deltas = _rival_moves(chosen, rivals)
     named = [t.finding.effect.label for t in rivals[:3]]
     more = f" and {len(rivals) - 3} more" if len(rivals) > 3 else ""
-    return (
+    text = (
         f"{effect.label} was kept, but {_and(named)}{more} "
         f"predict{'s' if len(rivals) == 1 else ''} the held-out data as well (cross-validated "
         f"RMS {score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals[:3]])}): this plan "
         "cannot tell which direction and pair of axes the surface belongs to; away from the "
         f"lines measured they differ{_moves_said(trial, beyond)}. Lines along the pair's axes "
         "at other offsets would tell them apart"
-    ), deltas
+    )
+    return _Doubt(text, deltas, tuple(rivals))
+
+
+def _rival_report(trial: _Trial) -> dict[str, object]:
+    """A rival of a kept effect as report.json lists it: its kind, axis, label and parameters
+    as fitted in its trial, and its cross-validated RMS over the readings the step's candidates
+    were ranked on (every line, angular readings on the displacement scale)."""
+    effect = trial.finding.effect
+    return {
+        "kind": effect.kind,
+        "axis": effect.axis,
+        "label": effect.label,
+        "parameters": trial.parameters,
+        "cv_rms_all_lines": trial.score,
+    }
 
 
 def _rival_moves(
@@ -2437,7 +2487,7 @@ def _surface_place(effect: Effect) -> tuple[str, frozenset[str]] | None:
 UNSETTLED_RATIO = 3.0
 
 
-def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | None, FloatArray]:
+def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     """What the kept surface's shape leaves open: its rivals of the same direction and pair
     (another order, with or without lever-arm terms) that pass and predict the held-out data as
     well (within ``tie``) are fits the plan cannot rank below it.
@@ -2450,7 +2500,7 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | 
     effect = chosen.finding.effect
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, CrossAxis):
-        return None, delta
+        return _Doubt(None, delta)
     place = _surface_place(effect)
     rivals = [
         trial
@@ -2461,23 +2511,24 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[str | 
         and trial.score <= chosen.score * (1.0 + tie)
     ]
     if not rivals:
-        return None, delta
+        return _Doubt(None, delta)
     trial, beyond, _ = _rival_moves(chosen, rivals)
     delta = trial.refit.model.parameters - chosen.refit.model.parameters
     if not beyond:
-        return None, delta
+        return _Doubt(None, delta)
     # a rival better than the kept fit is a richer variant refused by the margin
     compared = (
         "as well as"
         if trial.score >= chosen.score
         else "better, by less than the margin a richer variant must earn, than"
     )
-    return (
+    text = (
         f"{trial.finding.effect.label} predicts the held-out data {compared} the kept "
         f"{effect.label} (cross-validated RMS {trial.score:.4g} and {chosen.score:.4g}), and the "
         f"errors fitted beside the two differ: {_moved_text(beyond)}. This plan does not settle "
         "the surface's shape; the stated uncertainties of the errors include that difference"
-    ), delta
+    )
+    return _Doubt(text, delta)
 
 
 #: Two fits read the readings identically when their weighted residual sums of squares agree
@@ -2489,9 +2540,7 @@ def _chi2(fit: Identification) -> float:
     return float(np.sum((fit.residual / fit.readings.sigma) ** 2))
 
 
-def _interchangeable(
-    chosen: _Trial, trials: list[_Trial], tie: float
-) -> tuple[str | None, FloatArray]:
+def _interchangeable(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     """What a kept set-up effect (an Abbe offset, a cosine misalignment) leaves open: the same
     kind of effect on another line that passes and fits the readings identically (the plan's
     21 errors take up one line's set-up as readily as the other's: the lines are tied by the
@@ -2505,7 +2554,7 @@ def _interchangeable(
     effect = chosen.finding.effect
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, (AbbeOffset, Cosine)):
-        return None, delta
+        return _Doubt(None, delta)
     chi2 = _chi2(chosen.refit)
     rivals = [
         trial
@@ -2520,21 +2569,20 @@ def _interchangeable(
         )
     ]
     if not rivals:
-        return None, delta
+        return _Doubt(None, delta)
     trial, beyond, deltas = _rival_moves(chosen, rivals)
     lines = _and([t.finding.effect.line_name for t in rivals])  # type: ignore[attr-defined]
     said = _moves_said(trial, beyond, AGREE)
-    return (
+    text = (
         f"{effect.label} was kept, but the same on line{'s' if len(rivals) > 1 else ''} "
         f"{lines} fits the readings as well (cross-validated RMS {chosen.score:.4g} kept, "
         f"{_and([f'{t.score:.4g}' for t in rivals])}): this plan cannot tell which line's "
         f"set-up it is{said}. Check those lines' set-up, or measure them again"
-    ), deltas
+    )
+    return _Doubt(text, deltas, tuple(rivals))
 
 
-def _which_set_up(
-    chosen: _Trial, trials: list[_Trial], tie: float
-) -> tuple[str | None, FloatArray]:
+def _which_set_up(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     """What a kept set-up effect leaves open about its own line: the other set-up effect of the
     same line (a cosine misalignment for an Abbe offset, or the reverse) that passes and
     predicts the held-out data as well (within ``tie``). A line whose angular errors change
@@ -2547,7 +2595,7 @@ def _which_set_up(
     effect = chosen.finding.effect
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, (AbbeOffset, Cosine)):
-        return None, delta
+        return _Doubt(None, delta)
     rivals = [
         trial
         for trial in trials
@@ -2559,15 +2607,16 @@ def _which_set_up(
         and trial.score <= chosen.score * (1.0 + tie)
     ]
     if not rivals:
-        return None, delta
+        return _Doubt(None, delta)
     trial, beyond, deltas = _rival_moves(chosen, rivals)
     said = _moves_said(trial, beyond, AGREE)
-    return (
+    text = (
         f"{effect.label} was kept, but {trial.finding.effect.label} predicts the held-out data "
         f"as well (cross-validated RMS {chosen.score:.4g} kept, {trial.score:.4g}): this plan "
         f"cannot tell whether the line's optics sit off the beam or its beam is tilted{said}. "
         "Check the line's alignment, or measure it again with the optics at another offset"
-    ), deltas
+    )
+    return _Doubt(text, deltas, tuple(rivals))
 
 
 def _moved_text(beyond: list[tuple[float, str, float]]) -> str:

@@ -4,7 +4,9 @@ hand: no scenario is measured and no loop is run.
 The strict score asks for the exact effect set. Beside it, an effect only one line shows beyond
 what the 21 errors absorb (a local defect, a surface, a drift in time with no material
 temperature) cannot be attributed by any method on that plan, and the loop is also counted right
-when it reports that line unexplained; these tests pin which effects that excuse covers.
+when it reports that line unexplained; these tests pin which effects that excuse covers. Nor can the readings choose between a kept
+effect and a rival of another place the report names beside it as fitting as well: a second
+score swaps such rivals in.
 Squareness is scored as the angle between two axes, whatever share of it a model and a generator
 put in the straightness slopes.
 """
@@ -132,6 +134,40 @@ def test_an_effect_the_21_errors_absorb_may_be_missed() -> None:
     assert not outcome.visible
     assert not outcome.one_line_visible
     assert outcome.right_up_to_one_line_effects
+
+
+def _surface(axis: str, pair: tuple[str, str], rivals: Iterable[dict] = ()) -> dict:
+    """A kept surface as report.json lists it, with the rivals named beside it."""
+    entry: dict = {"kind": "cross_axis", "axis": axis, "parameters": {"depends_on": list(pair)}}
+    if rivals:
+        entry["rivals"] = {"kept_cv_rms_all_lines": 0.3, "effects": list(rivals)}
+    return entry
+
+
+def test_a_surface_kept_in_place_of_an_equal_rival_the_report_names_is_right_up_to_it() -> None:
+    truth = ("cross_axis", "Y over Y×Z")
+    outcome = _outcome({truth: ["diag_yz_pp", "y_straight_z"], REVERSAL: ["x_linear"]})
+    outcome.kept = {("cross_axis", "Z over Y×Z"), REVERSAL}
+    outcome.effects_report = [
+        _surface("Z", ("Y", "Z"), [_surface("X", ("X", "Z")), _surface("Y", ("Z", "Y"))]),
+        {"kind": "reversal", "axis": "X", "parameters": {}},
+    ]
+    assert not outcome.exact
+    assert outcome.exact_up_to_named_rivals
+    # the same, with the truth not among the rivals: wrong
+    outcome.effects_report[0] = _surface("Z", ("Y", "Z"), [_surface("X", ("X", "Z"))])
+    assert not outcome.exact_up_to_named_rivals
+
+
+def test_two_kept_surfaces_cannot_both_stand_for_one_injected() -> None:
+    truth = ("cross_axis", "Y over Y×Z")
+    outcome = _outcome({truth: ["diag_yz_pp", "y_straight_z"]})
+    outcome.kept = {("cross_axis", "Z over Y×Z"), ("cross_axis", "X over X×Z")}
+    outcome.effects_report = [
+        _surface("Z", ("Y", "Z"), [_surface("Y", ("Y", "Z"))]),
+        _surface("X", ("X", "Z"), [_surface("Y", ("Y", "Z"))]),
+    ]
+    assert not outcome.exact_up_to_named_rivals
 
 
 SQUARE = {"EC0Y": 12.0, "EB0Z": -7.0, "EA0Z": 3.0}
