@@ -293,6 +293,9 @@ class Outcome:
     outside_visibility: float = 0.0
     #: the breakpoint spacing (mm) of the 21 errors' basis the loop chose
     basis_mm: float | None = None
+    #: per identified function and squareness, the error its stated uncertainty predicts
+    #: (:func:`expected_errors`; µm, µrad)
+    expected_error: dict[str, float] = field(default_factory=dict)
 
     @property
     def visible_expected(self) -> set[tuple[str, str]]:
@@ -465,6 +468,7 @@ def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
         [u["where"] for u in report["unexplained"]],
         max(outside.values(), default=0.0) / noise,
         report.get("basis", {}).get("spacing_mm"),
+        expected_errors(result),
     )
 
 
@@ -597,6 +601,32 @@ def _single_axis_model(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, np.
     design = model.functions[eid].basis.design(q)
     variance = np.einsum("ij,jk,ik->i", design, result.final.covariance[sl, sl], design)
     return total, np.sqrt(np.maximum(variance, 0.0))
+
+
+def expected_errors(result) -> dict[str, float]:  # type: ignore[no-untyped-def]
+    """Per identified function, the RMS error over its stroke (gauge removed as
+    :func:`_gauged` removes it) that its stated covariance alone predicts, √(tr(G D C Dᵀ Gᵀ)/n);
+    per squareness, its stated standard uncertainty. What an unbiased fit with those bands
+    would miss the truth by: where it is near the bound, no fit of that plan and noise meets the
+    bound reliably."""
+    model, covariance = result.final.model, result.final.covariance
+    out = {}
+    for eid in result.base.identifiability.identified_ids:
+        sl = model.parameter_slices[eid]
+        if eid in model.squareness_urad:
+            out[eid] = float(np.sqrt(max(covariance[sl, sl][0, 0], 0.0)))
+            continue
+        low, high = model.machine.stroke(eid[2])
+        q = np.linspace(low, high, 161)
+        design = model.functions[eid].basis.design(q)
+        if eid[1] in AXES and eid[1] != eid[2]:
+            # the least-squares slope over q, then the value at the start
+            centred = (q - q.mean()) / np.sum((q - q.mean()) ** 2)
+            design = design - np.outer(q, centred @ design)
+        design = design - design[0]
+        variance = np.einsum("ij,jk,ik->i", design, covariance[sl, sl], design)
+        out[eid] = float(np.sqrt(max(np.mean(variance), 0.0)))
+    return out
 
 
 def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, float], float]:  # type: ignore[no-untyped-def]

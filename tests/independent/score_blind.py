@@ -24,6 +24,7 @@ from loop_scenarios import (
     Outcome,
     _gauged,
     _slope,
+    expected_errors,
     kept_effects,
     squareness_errors,
     squareness_ratio,
@@ -251,4 +252,5 @@ def run_blind(seed: int) -> Outcome:
             default=0.0,
         ),
         report.get("basis", {}).get("spacing_mm"),
+        expected_errors(result),
     )
