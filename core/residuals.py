@@ -2964,9 +2964,7 @@ def _audit(
     return current, cv, kept
 
 
-def _leaves_its_line(
-    fit: Identification, effect: AbbeOffset | Cosine, alpha: float
-) -> str | None:
+def _leaves_its_line(fit: Identification, effect: AbbeOffset | Cosine, alpha: float) -> str | None:
     """Why a set-up error of one line does not explain that line: with every kept effect in the
     model, its line alone (:func:`_unexplained_by_line`) keeps a residual that changes in time
     beyond the line's repeatability (the time test of :func:`_line_test`, that line alone at

@@ -4,9 +4,9 @@ hand: no scenario is measured and no loop is run.
 The strict score asks for the exact effect set. Beside it, an effect only one line shows beyond
 what the 21 errors absorb (a local defect, a surface, a drift in time with no material
 temperature) cannot be attributed by any method on that plan, and the loop is also counted right
-when it reports that line unexplained; these tests pin which effects that excuse covers. Nor can the readings choose between a kept
-effect and a rival of another place the report names beside it as fitting as well: a second
-score swaps such rivals in.
+when it reports that line unexplained; these tests pin which effects that excuse covers. Nor
+can the readings choose between a kept effect and a rival of another place the report names
+beside it as fitting as well: a second score swaps such rivals in.
 Squareness is scored as the angle between two axes, whatever share of it a model and a generator
 put in the straightness slopes.
 """

@@ -392,7 +392,7 @@ class Outcome:
 
 
 def effect_place(effect: dict) -> tuple[str, str]:
-    """A kept effect (or a rival) of report.json as (kind, where), like :attr:`Scenario.expected`."""
+    """A kept effect (or a rival) of report.json as (kind, where), as :attr:`Scenario.expected`."""
     p = effect["parameters"]
     if effect["kind"] in SETUP_KINDS:
         return effect["kind"], p["line"]
