@@ -298,7 +298,7 @@ class LoopResult:
                     "terms": list(part.terms),
                     "errors": list(part.errors),
                 }
-            if rival.get("effects"):
+            if rival:
                 entry["rivals"] = rival
             out.append(entry)
         return out
@@ -1988,7 +1988,7 @@ class _State:
     #: per kept surface or set-up effect: how the 21 errors' parameters move to each rival that
     #: fits as well, one per row (zero rows where none moves them beyond their uncertainty)
     shape_doubt: dict[EffectKey, FloatArray] = field(default_factory=dict)
-    #: per kept effect: its rivals of another place that fit as well (report.json
+    #: per kept effect that has any: its rivals of another place that fit as well (report.json
     #: ``effects[].rivals``: the kept fit's score and :func:`_rival_report` of each)
     rivals: dict[EffectKey, dict[str, object]] = field(default_factory=dict)
     #: per axis: a kept searched cycle's aliases
@@ -2081,7 +2081,9 @@ def _forward(
         # what the plan leaves open about this keep replaces what an earlier keep left open
         ambiguous[key] = [d.text for d in doubts if d.text is not None]
         named = [_rival_report(t) for d in doubts for t in d.rivals]
-        state.rivals[key] = {"kept_cv_rms_all_lines": chosen.score, "effects": named}
+        state.rivals.pop(key, None)
+        if named:
+            state.rivals[key] = {"kept_cv_rms_all_lines": chosen.score, "effects": named}
         effect = chosen.finding.effect
         if chosen.finding.alias_mm:
             aliased[effect.axis] = chosen.finding.alias_mm  # type: ignore[index]
@@ -2976,10 +2978,7 @@ def _leaves_its_line(fit: Identification, effect: AbbeOffset | Cosine, alpha: fl
     no such sign: a right set-up error fitted beside a surface the plan fits imperfectly leaves
     one too (blind 19167). Where other lines keep structure as well, the model lacks something
     that may spoil this line too, and the set-up error is not judged by it."""
-    names = [line.name for line in fit.readings.lines]
-    if effect.line_name not in names:
-        return None
-    index = names.index(effect.line_name)
+    index = effect.line
     p_time = _line_test(fit.readings, fit.residual, index).p_time
     if p_time >= alpha or any(i != index for i, _ in _unexplained_by_line(fit, None, alpha)):
         return None
