@@ -3,7 +3,8 @@ read the method), for behaviours its suite showed missing:
 
 - a cycle shorter than twice the spacing of most lines is found at its period when one line's
   targets are fine enough to sample it (the coarser lines alias it; together they do not), and
-  one shorter than twice every line's spacing where irregular targets tell it from its aliases;
+  one shorter than twice every line's spacing where irregular targets tell it from its aliases,
+  down to a third of the spacing;
 - an error periodic in time, which only widens the run-to-run spread of the lines it acts on, is
   reported as unexplained on each of them, and nothing is kept for it;
 - a scale that oscillates in time, which a surface over two axes or a drift can mimic on the
@@ -135,6 +136,21 @@ def test_a_cycle_shorter_than_twice_the_spacing_is_found_where_irregular_targets
     assert parameters["period_mm"] == pytest.approx(cycle["parameters"]["period_mm"], rel=0.002)
     h2 = cycle["parameters"]["harmonic2_amplitude_um"]
     assert parameters["amplitude_um_h2"] == pytest.approx(h2, rel=0.1)
+
+
+def test_a_cycle_shorter_than_half_the_spacing_is_found_where_irregular_targets_tell_it() -> None:
+    # twelve-line plan, targets 10-27 mm apart; a 6.0 mm cycle of Y, 1.4 µm, at 0.44 µm noise:
+    # the search started at half the finest spacing (6.5 mm), nothing was kept and three lines
+    # were reported with 1.3 µm each. No spacing of these targets repeats (their spectral window
+    # stays below 0.5), so the search runs down to 2 mm and the alias guard holds
+    report, truth = _loop(26083)
+    (cycle,) = [e for e in truth["effects"] if e["kind"] == "cyclic"]
+    kept = [e for e in report["effects"] if e["kind"] == "cyclic" and e["axis"] == "Y"]
+    assert len(kept) == 1 and len(report["effects"]) == 1, report["effects"]
+    period = cycle["parameters"]["period_mm"]
+    assert kept[0]["parameters"]["period_mm"] == pytest.approx(period, rel=0.002)
+    assert not report["unexplained"], report["unexplained"]
+    assert not any("none shorter than" in w for w in report["warnings"]), report["warnings"]
 
 
 def test_a_surface_the_plan_cannot_place_is_kept_with_a_warning_naming_its_rival() -> None:
