@@ -381,6 +381,26 @@ def test_a_cycle_shorter_than_twice_the_spacing_needs_irregular_targets(jitter_m
         ]
 
 
+@pytest.mark.parametrize(("jitter_mm", "irregular"), [(0.0, False), (6.0, True)])
+def test_cycles_below_half_the_spacing_are_searched_only_where_no_spacing_repeats(
+    jitter_mm: float, irregular: bool
+) -> None:
+    """Targets every 12 mm repeat at 1/12 mm⁻¹: a cycle below 6 mm has aliases as good, and is
+    not searched. Targets jittered ±6 mm repeat at no lag (their spectral window stays below
+    0.5), so the search runs down to 2 mm and no warning says a shorter cycle goes unseen."""
+    from volucal.core.residuals import _irregular_targets, flatten
+
+    truth = sim.random_truth(seed=16)
+    vm = sim.VirtualMachine(truth, (), seed=16, laser=sim.LaserSetup(noise_um=NOISE))
+    measured = vm.measure(plans.layout("direct", truth.machine, 12.0, jitter_mm))
+    lines = tuple(line for line in measured.lines if not line.name.startswith("diag"))
+    measurement = Measurement(measured.machine, lines)
+    assert _irregular_targets(flatten(measurement), "X") is irregular
+    report = close_loop(measurement).to_report()
+    unsearched = [w for w in report["warnings"] if "none shorter than" in w]
+    assert not (irregular and unsearched), report["warnings"]
+
+
 def test_the_console_table_prints_every_label_whole_in_aligned_columns() -> None:
     label = "cross-axis EX over Y×Z (order 4, with lever-arm terms)"  # 55 characters
     rms = {"before": 0.5, "after": 0.2}
@@ -389,10 +409,22 @@ def test_the_console_table_prints_every_label_whole_in_aligned_columns() -> None
         "readings": 90,
         "identifiability": {"rank": 1, "unknowns": 1, "unidentifiable": []},
         "loop": [
-            {"step": 1, "effect": {"kind": "reversal", "label": "reversal X"}, "kept": True,
-             "verdict": "kept", "rms_um": rms, "cv_rms_um": rms},
-            {"step": 1, "effect": {"kind": "cross_axis", "label": label}, "kept": False,
-             "verdict": "below margin", "rms_um": rms, "cv_rms_um": rms},
+            {
+                "step": 1,
+                "effect": {"kind": "reversal", "label": "reversal X"},
+                "kept": True,
+                "verdict": "kept",
+                "rms_um": rms,
+                "cv_rms_um": rms,
+            },
+            {
+                "step": 1,
+                "effect": {"kind": "cross_axis", "label": label},
+                "kept": False,
+                "verdict": "below margin",
+                "rms_um": rms,
+                "cv_rms_um": rms,
+            },
         ],
         "residual_rms_um": {"before_loop": 0.5, "after_loop": 0.2},
         "cv_rms_um": {"before_loop": 0.5, "after_loop": 0.2, "method": "held-out lines"},
