@@ -767,14 +767,13 @@ def _cyclic_candidates(
                 "few leads or irregular target spacing"
             )
         diagnosis.add(effect)
-    shortest = max(2.0, 2.0 * step if np.isfinite(step) else 2.0)
-    irregular = _irregular_targets(diagnosis.readings, axis)
-    if irregular:
+    shortest = max(SHORTEST_PERIOD_MM, 2.0 * step if np.isfinite(step) else 0.0)
+    if not np.isfinite(step) or SUB_SPACING_SHARE * step <= SHORTEST_PERIOD_MM:
+        lowest = SHORTEST_PERIOD_MM
+    elif _irregular_targets(diagnosis.readings, axis):  # only where it lowers the floor
         lowest = SHORTEST_PERIOD_MM
     else:
-        lowest = (
-            max(SHORTEST_PERIOD_MM, SUB_SPACING_SHARE * step) if np.isfinite(step) else shortest
-        )
+        lowest = SUB_SPACING_SHARE * step
     longest = span / 4.0
     if not lead and shortest > 8.0 and lowest > SHORTEST_PERIOD_MM:
         warnings.append(
@@ -849,7 +848,7 @@ def _irregular_targets(readings: Readings, axis: str) -> bool:
     at g = 1/s (window 1: every period below 2 s has aliases as good); targets at irregular
     steps (ISO 230-2 advises them to reveal periodic errors) repeat at no g, and a least-squares
     sine needs no two samples per period. Blind 26083: a 6 mm cycle of Y on lines whose targets
-    are 10–27 mm apart, never searched below 10 mm, left 1.3 µm on three lines."""
+    are 10–27 mm apart, never searched below 6.5 mm, left 1.3 µm on three lines."""
     k = AXIS_INDEX[axis]
     positions = [
         line.data.targets_mm * abs(line.spec.direction[k])
@@ -3057,21 +3056,21 @@ def _read_long_beside(fit: Identification, effect: Cosine, alpha: float) -> str 
     readings = fit.readings
     own = np.abs(readings.lines[effect.line].spec.direction) > 1e-6
     tester = _Tester(fit)
-    columns, signs = {}, {}
+    columns, z_scores = {}, {}
     for index, line in enumerate(readings.lines):
         along = np.abs(line.spec.direction) > 1e-6
         if index == effect.line or line.spec.quantity != "linear" or not np.any(own & along):
             continue
         columns[index] = Cosine(index, line.name).design(readings, fit.model)
         f_statistic, _, _, beta = tester.test(columns[index])
-        signs[index] = float(np.sign(beta[0]) * np.sqrt(max(f_statistic, 0.0)))
-    short = [i for i, z in signs.items() if z < -SHORT_SIGMAS]
+        z_scores[index] = float(np.sign(beta[0]) * np.sqrt(max(f_statistic, 0.0)))
+    short = [i for i, z in z_scores.items() if z < -SHORT_SIGMAS]
     freed = np.hstack([columns[i] for i in short]) if short else None
     base = 0.0
     if freed is not None:
         base = tester.test(freed)[0] * tester.last_dimensions
     worst = None
-    for index, z in signs.items():
+    for index, z in z_scores.items():
         if z <= 0:
             continue
         joint = columns[index] if freed is None else np.hstack([columns[index], freed])
