@@ -343,7 +343,7 @@ class LoopView(View):
                 _num(ev.get("F")), _num(ev.get("log10_false_alarm")), um(ev.get("magnitude_um")),
                 f"{um(rms.get('before'))} → {um(rms.get('after'))}",
                 f"{um(cv.get('before'))} → {um(cv.get('after'))}",
-                "kept" if step.get("kept") else _rejected(step.get("verdict")),
+                _kept(step.get("verdict")) if step.get("kept") else _rejected(step.get("verdict")),
             ]
             for column, text in enumerate(cells):
                 item = QTableWidgetItem(text)
@@ -470,6 +470,11 @@ class LoopView(View):
             f"{_num(ev.get('F'))}, log₁₀ false alarm {_num(ev.get('log10_false_alarm'))}, "
             f"magnitude {_num(ev.get('magnitude_um'))} µm, where: {ev.get('where', '—')}. "
             f"{step.get('reason', '')}")
+
+
+def _kept(verdict: Any) -> str:
+    """A step kept: two set-up errors kept in one refit say so."""
+    return "kept together" if verdict == "kept together" else "kept"
 
 
 def _rejected(verdict: Any) -> str:

@@ -362,7 +362,10 @@ def summary_table(result: Mapping[str, Any]) -> str:
     lines.append(f"{'closed loop':<{width + 5}}RMS µm         CV RMS µm   kept")
     lines.append(f"{pad}                                            before  after   before  after")
     for step, label in zip(result["loop"], labels, strict=True):
-        kept = "yes" if step["kept"] else f"no: {step['verdict']}"  # why not, in a few words
+        # why not in a few words; two set-up errors kept in one refit, so
+        kept = "yes" if step["kept"] else f"no: {step['verdict']}"
+        if step["verdict"] == "kept together":
+            kept = "yes, together"
         lines.append(
             f"{step['step']:>2} {label:<{width}} "
             f"{step['rms_um']['before']:6.3f} {step['rms_um']['after']:6.3f}"
@@ -384,6 +387,10 @@ def summary_table(result: Mapping[str, Any]) -> str:
             f"   {'every line, angular at σ exchange':<{width}} {'':6} {'':6}"
             f"   {judged['before_loop']:6.3f} {judged['after_loop']:6.3f}"
         )
+    # why an effect the table showed kept was taken out again
+    for step, label in zip(result["loop"], labels, strict=True):
+        if step.get("stage") in ("backward", "audit") and not step["kept"]:
+            lines.append(f"   step {step['step']}, {label} taken out: {step['reason']}")
     basis = result.get("basis")
     if basis:
         tried = ", ".join(f"{t['spacing_mm']:g} mm {t['cv_rms_um']:.3f}" for t in basis["tried"])

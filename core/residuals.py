@@ -1736,12 +1736,14 @@ def _on_common_rows(trials: list[_Trial]) -> list[_Trial]:
     ]
 
 
-#: A step's decision in a few words (report.json ``loop[].verdict``): kept; passed every rule but
+#: A step's decision in a few words (report.json ``loop[].verdict``): kept; kept together with
+#: another set-up error in one refit (:func:`_set_up_pairs`); passed every rule but
 #: another candidate of the step was kept; refused by rule (a) plausibility, (b) one line only,
 #: (c) the margin, (d) generalisation or (e) repeatability; a kept effect's searched quantity
 #: estimated again; a kept effect taken out by the backward pass or the final audit.
 VERDICTS = (
     "kept",
+    "kept together",
     "another kept",
     "implausible",
     "one line only",
@@ -1756,6 +1758,8 @@ VERDICTS = (
 #: lacks spoils them as much as a misfit of the candidate's own, so a candidate refused for one
 #: is refitted again at the next step after another effect is kept, whatever its F statistic.
 SPOILED_BY_THE_REST = ("not repeatable", "uneven along its line")
+#: The verdict of two set-up errors kept in one refit (:func:`_set_up_pairs`).
+TOGETHER = "kept together"
 #: A line shows an effect when what the 21 errors cannot absorb of it there reaches 4 σ.
 SHOWN_SIGMA2 = 16.0
 #: Machine effects that one line alone cannot tell from an artefact of that line's set-up.
@@ -2053,7 +2057,7 @@ def _forward(
     """Add effects one step at a time while one passes every rule (:func:`_judge`), continuing
     from ``state``; ``base`` is the fit of the 21 errors alone."""
     current, cv, kept, number = state.current, state.cv, state.kept, state.number
-    steps, refused, ambiguous, aliased = state.steps, state.refused, state.ambiguous, state.aliased
+    steps, refused, aliased = state.steps, state.refused, state.aliased
     while number < options.max_steps:
         number += 1
         check(cancel)
@@ -2117,30 +2121,153 @@ def _forward(
                     _step(number, trial, trial is chosen, reason, current, cv, verdict=verdict)
                 )
         if chosen is None:
-            break
-        key = chosen.finding.effect.key
-        doubts = [
-            doubt(chosen, tried_this_step, options.tie)
-            for doubt in (_alike, _unsettled, _interchangeable, _which_set_up)
-        ]
-        state.shape_doubt[key] = np.vstack([np.atleast_2d(d.moves) for d in doubts])
-        # what the plan leaves open about this keep replaces what an earlier keep left open
-        ambiguous[key] = [d.text for d in doubts if d.text is not None]
-        named = [_rival_report(t) for d in doubts for t in d.rivals]
-        state.rivals.pop(key, None)
-        if named:
-            state.rivals[key] = {"kept_cv_rms_all_lines": chosen.score, "effects": named}
-        effect = chosen.finding.effect
-        if chosen.finding.alias_mm:
-            aliased[effect.axis] = chosen.finding.alias_mm  # type: ignore[index]
-        elif isinstance(effect, Cyclic) and not any(
-            isinstance(e, Cyclic) and e.period_mm == effect.period_mm for e in kept
-        ):
-            aliased.pop(effect.axis, None)  # a new cycle of the axis, told from its aliases
+            pairs = _set_up_pairs(tried_this_step, fit, current, cv, kept, options)
+            if not pairs:
+                break
+            pair = min(pairs, key=lambda p: p[1].score)
+            for trial, partner in (pair, pair[::-1]):
+                reason = f"{trial.reason}; {_together(partner)}"
+                steps.append(_step(number, trial, True, reason, current, cv, verdict=TOGETHER))
+            # the partner's line: its Abbe offset or its cosine error, which the plan may not tell
+            _doubts(state, pair[1], [p[1] for p in pairs], options)
+            chosen = pair[0]
+        else:
+            # rivals of a kept surface the step's batches left out: refitted to be named only
+            extra = []
+            for finding in _untried_places(findings, tried_this_step, chosen, options):
+                effects = _with(kept, finding.effect, current.model.machine)
+                extra.append(_judge(finding, current, cv, *fit(effects, current.model), options))
+            if extra:
+                at = tried_this_step.index(chosen)
+                tried_this_step = _on_common_rows(tried_this_step + extra)
+                chosen = tried_this_step[at]
+            _doubts(state, chosen, tried_this_step, options)
+            effect = chosen.finding.effect
+            if chosen.finding.alias_mm:
+                aliased[effect.axis] = chosen.finding.alias_mm  # type: ignore[index]
+            elif isinstance(effect, Cyclic) and not any(
+                isinstance(e, Cyclic) and e.period_mm == effect.period_mm for e in kept
+            ):
+                aliased.pop(effect.axis, None)  # a new cycle of the axis, told from its aliases
         kept = list(chosen.refit.effects)  # type: ignore[arg-type]
         current, cv = chosen.refit, chosen.cv
         current, cv, kept = _refine(fit, current, cv, kept, base, steps, number)
     state.current, state.cv, state.kept, state.number = current, cv, kept, number
+
+
+def _doubts(state: _State, chosen: _Trial, trials: list[_Trial], options: LoopOptions) -> None:
+    """Record what the plan leaves open about a keep: its warnings, the moves of the errors to
+    its rivals and the rivals report.json names, replacing what an earlier keep left open."""
+    key = chosen.finding.effect.key
+    doubts = [
+        doubt(chosen, trials, options.tie)
+        for doubt in (_alike, _unsettled, _interchangeable, _which_set_up)
+    ]
+    state.shape_doubt[key] = np.vstack([np.atleast_2d(d.moves) for d in doubts])
+    state.ambiguous[key] = [d.text for d in doubts if d.text is not None]
+    named = [_rival_report(t) for d in doubts for t in d.rivals]
+    state.rivals.pop(key, None)
+    if named:
+        state.rivals[key] = {"kept_cv_rms_all_lines": chosen.score, "effects": named}
+
+
+def _untried_places(
+    findings: list[Finding], tried: list[_Trial], chosen: _Trial, options: LoopOptions
+) -> list[Finding]:
+    """For a kept surface: the strongest finding of each other direction and pair of axes no
+    refit of the step tried, where the diagnosis gives it nearly the chosen one's gain (at least
+    :data:`RIVAL_GAIN_SHARE` of it), up to ``candidates_per_step``. A plan that sees a surface on
+    one line sees every surface alike there (blind 27068: four places within 0.2 % of one
+    another's gain, the injected one fourth): each is refitted, only so the report can name
+    it as a rival that fits as well."""
+    effect = chosen.finding.effect
+    if not isinstance(effect, CrossAxis):
+        return []
+    seen = {_surface_place(t.finding.effect) for t in tried}
+    out: list[Finding] = []
+    for finding in sorted(findings, key=lambda f: -f.gain):
+        place = _surface_place(finding.effect)
+        if (
+            place is None
+            or place in seen
+            or finding.log10_false_alarm >= np.log10(options.alpha)
+            or finding.gain < RIVAL_GAIN_SHARE * chosen.finding.gain
+        ):
+            continue
+        seen.add(place)
+        out.append(finding)
+    return out[: options.candidates_per_step]
+
+
+#: A surface of another place is refitted as a kept one's possible rival where the diagnosis
+#: gives it at least this share of the kept one's gain (:func:`_untried_places`).
+RIVAL_GAIN_SHARE = 0.95
+
+
+def _set_up_pairs(
+    tried: list[_Trial],
+    fit: _Fitter,
+    current: Identification,
+    cv: CrossValidation,
+    kept: list[Effect],
+    options: LoopOptions,
+) -> list[tuple[_Trial, _Trial]]:
+    """Two set-up errors of two lines that each predict the held-out data too little alone but
+    together pass every rule, as two trials of one refit: one pair per set-up of the second
+    line that passes (none, one or two).
+
+    Where two lines are misaligned, the 21 errors bend to share each line's error between both:
+    the residual of either holds only part of its own error (indep. 3300056: 3.2 of 7.5 ppm and
+    5.9 of 9.4), so either alone leaves the other's share in the model and predicts the held-out
+    lines no better. Held with the best of a step's set-up candidates refused only for the
+    margin, the other line's error shows whole: the strongest set-up finding of another line in
+    that refit's residual (its Abbe offset and cosine error both tried) is refitted with it, and
+    the pair is judged against the current model by every rule, each effect on its own."""
+    held = [
+        t for t in tried if t.verdict == "below margin" and t.finding.effect.line_index is not None
+    ]
+    if not held:
+        return []
+    first = min(held, key=lambda t: t.score)
+    line = first.finding.effect.line_index
+    findings, _ = diagnose(first.refit, [e.key for e in first.refit.effects], options)
+    others = [
+        f
+        for f in findings
+        if f.effect.line_index not in (None, line)
+        and f.log10_false_alarm < np.log10(options.alpha)
+        and f.effect.key not in {e.key for e in kept}
+    ]
+    if not others:
+        return []
+    partners = [f for f in others if f.effect.line_index == others[0].effect.line_index]
+    pairs = []
+    for finding in partners:
+        effects = _with(list(first.refit.effects), finding.effect, current.model.machine)
+        refit, cv_new = fit(effects, current.model)
+        pair = (
+            _judge(first.finding, current, cv, refit, cv_new, options),
+            _judge(finding, current, cv, refit, cv_new, options),
+        )
+        if pair[0].ok and pair[1].ok:
+            pairs.append(pair)
+    return _on_common_pairs(pairs)
+
+
+def _on_common_pairs(pairs: list[tuple[_Trial, _Trial]]) -> list[tuple[_Trial, _Trial]]:
+    """``pairs`` with their scores over the readings every pair predicts (as
+    :func:`_on_common_rows`: each pair's two trials share one refit)."""
+    firsts = _on_common_rows([p[0] for p in pairs])
+    seconds = _on_common_rows([p[1] for p in pairs])
+    return list(zip(firsts, seconds, strict=True))
+
+
+def _together(partner: _Trial) -> str:
+    return (
+        f"kept together with the {partner.finding.effect.label}: the 21 errors share two "
+        "lines' set-up errors between both lines, so neither alone predicts the held-out data "
+        "better"
+    )
 
 
 def _prune(
@@ -2189,12 +2316,17 @@ def close_loop(
         )
     fit = _Fitter(measurement, readings, options, redundant, cancel)
     state = _State(base, cv_base)
+    # the kept sets the rounds started from: a round that would start from one again, every
+    # candidate scored anew, would repeat that round step for step
+    starts: list[frozenset[EffectKey]] = []
     for _ in range(AUDIT_ROUNDS):
+        starts.append(frozenset(e.key for e in state.kept))
         _forward(state, fit, options, progress, cancel, base)
         _prune(_backward, state, fit, base, cv_base, options)
         if (
             not _prune(_audit, state, fit, base, cv_base, options)
             or state.number >= options.max_steps
+            or frozenset(e.key for e in state.kept) in starts
         ):
             break
         # what the taken-out effect held is the others' again: every candidate is scored anew
@@ -2475,12 +2607,12 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     if not rivals:
         return _Doubt(None, delta)
     trial, beyond, deltas = _rival_moves(chosen, rivals)
-    named = [t.finding.effect.label for t in rivals[:3]]
-    more = f" and {len(rivals) - 3} more" if len(rivals) > 3 else ""
+    # every one named: each may be the machine's
+    named = [t.finding.effect.label for t in rivals]
     text = (
-        f"{effect.label} was kept, but {_and(named)}{more} "
+        f"{effect.label} was kept, but {_and(named)} "
         f"predict{'s' if len(rivals) == 1 else ''} the held-out data as well (cross-validated "
-        f"RMS {score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals[:3]])}): this plan "
+        f"RMS {score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals])}): this plan "
         "cannot tell which direction and pair of axes the surface belongs to; away from the "
         f"lines measured they differ{_moves_said(trial, beyond)}. Lines along the pair's axes "
         "at other offsets would tell them apart"

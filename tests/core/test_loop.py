@@ -439,3 +439,30 @@ def test_the_console_table_prints_every_label_whole_in_aligned_columns() -> None
     column = long.index(" 0.500")
     assert short.index(" 0.500") == total.index(" 0.500") == column
     assert header.index("RMS µm") <= column + 7 < header.index("CV RMS µm")
+
+
+def test_the_console_says_why_an_effect_was_taken_out_and_what_was_kept_together() -> None:
+    rms = {"before": 0.5, "after": 0.2}
+    step = {"effect": {"kind": "cosine", "label": "cosine misalignment of line x_lin"}}
+    why = "line x_lin_2, along the same axes, reads 1.41 ± 0.23 ppm longer"
+    result = {
+        "lines": 3,
+        "readings": 90,
+        "identifiability": {"rank": 1, "unknowns": 1, "unidentifiable": []},
+        "loop": [
+            {**step, "step": 1, "kept": True, "verdict": "kept", "stage": "forward"},
+            {**step, "step": 2, "kept": False, "verdict": "below margin", "stage": "forward"},
+            {**step, "step": 2, "kept": False, "verdict": "taken out", "stage": "audit"},
+            {**step, "step": 3, "kept": True, "verdict": "kept together", "stage": "forward"},
+        ],
+        "residual_rms_um": {"before_loop": 0.5, "after_loop": 0.5},
+        "cv_rms_um": {"before_loop": 0.5, "after_loop": 0.5, "method": "held-out lines"},
+        "effects": [],
+    }
+    for index, row in enumerate(result["loop"]):
+        row.update(rms_um=rms, cv_rms_um=rms, reason=f"{why} ({index})")
+    table = summary_table(result).splitlines()
+    told = [r for r in table if "taken out:" in r]
+    assert told == [f"   step 2, cosine misalignment of line x_lin taken out: {why} (2)"]
+    # two set-up errors kept in one refit say so
+    assert [r.split()[0] for r in table if r.endswith("yes, together")] == ["3"]
