@@ -2177,7 +2177,7 @@ def _untried_places(
     """For a kept surface: the strongest finding of each other direction and pair of axes no
     refit of the step tried, where the diagnosis gives it nearly the chosen one's gain (at least
     :data:`RIVAL_GAIN_SHARE` of it), up to ``candidates_per_step``. A plan that sees a surface on
-    one line sees every surface alike there (blind 27068: four places within 0.2 % of one
+    one line sees every surface alike there (blind 27068: six places within 1 % of one
     another's gain, the injected one fourth): each is refitted, only so the report can name
     it as a rival that fits as well."""
     effect = chosen.finding.effect
