@@ -37,7 +37,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 from volucal.core.identify import residual_rms
-from volucal.core.residuals import LoopOptions
+from volucal.core.residuals import TOGETHER, LoopOptions
 from volucal.core.userror import UserError
 
 from . import evidence, jobs, plots
@@ -474,7 +474,7 @@ class LoopView(View):
 
 def _kept(verdict: Any) -> str:
     """A step kept: two set-up errors kept in one refit say so."""
-    return "kept together" if verdict == "kept together" else "kept"
+    return TOGETHER if verdict == TOGETHER else "kept"
 
 
 def _rejected(verdict: Any) -> str:

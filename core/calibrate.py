@@ -25,7 +25,7 @@ from .identify import Identification, UncertaintyBudget, parameters_report
 from .kinematics import VolumetricModel
 from .machine import Machine
 from .progress import CancelToken, ProgressCallback, check, report
-from .residuals import LoopOptions, LoopResult, close_loop
+from .residuals import TOGETHER, LoopOptions, LoopResult, close_loop
 from .userror import UserError
 
 FloatArray = NDArray[np.float64]
@@ -362,10 +362,9 @@ def summary_table(result: Mapping[str, Any]) -> str:
     lines.append(f"{'closed loop':<{width + 5}}RMS µm         CV RMS µm   kept")
     lines.append(f"{pad}                                            before  after   before  after")
     for step, label in zip(result["loop"], labels, strict=True):
-        # why not in a few words; two set-up errors kept in one refit, so
+        # why not, in a few words; two set-up errors kept in one refit say so
         kept = "yes" if step["kept"] else f"no: {step['verdict']}"
-        if step["verdict"] == "kept together":
-            kept = "yes, together"
+        kept += ", together" if step["verdict"] == TOGETHER else ""
         lines.append(
             f"{step['step']:>2} {label:<{width}} "
             f"{step['rms_um']['before']:6.3f} {step['rms_um']['after']:6.3f}"

@@ -47,7 +47,7 @@ from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import sparse
+from scipy import sparse, special
 
 from .effects import (
     AbbeOffset,
@@ -2231,12 +2231,13 @@ def _set_up_pairs(
     first = min(held, key=lambda t: t.score)
     line = first.finding.effect.line_index
     findings, _ = diagnose(first.refit, [e.key for e in first.refit.effects], options)
+    known = {e.key for e in kept}
     others = [
         f
         for f in findings
         if f.effect.line_index not in (None, line)
         and f.log10_false_alarm < np.log10(options.alpha)
-        and f.effect.key not in {e.key for e in kept}
+        and f.effect.key not in known
     ]
     if not others:
         return []
@@ -2251,15 +2252,9 @@ def _set_up_pairs(
         )
         if pair[0].ok and pair[1].ok:
             pairs.append(pair)
-    return _on_common_pairs(pairs)
-
-
-def _on_common_pairs(pairs: list[tuple[_Trial, _Trial]]) -> list[tuple[_Trial, _Trial]]:
-    """``pairs`` with their scores over the readings every pair predicts (as
-    :func:`_on_common_rows`: each pair's two trials share one refit)."""
-    firsts = _on_common_rows([p[0] for p in pairs])
-    seconds = _on_common_rows([p[1] for p in pairs])
-    return list(zip(firsts, seconds, strict=True))
+    # the partners ranked over the readings every pair predicts (one refit per pair)
+    partnered = _on_common_rows([p[1] for p in pairs])
+    return [(p[0], q) for p, q in zip(pairs, partnered, strict=True)]
 
 
 def _together(partner: _Trial) -> str:
@@ -3220,8 +3215,6 @@ def _read_long_beside(fit: Identification, effect: Cosine, alpha: float) -> str 
     if worst is None:
         return None
     gain, name, scale, std = worst
-    from scipy import special
-
     # one-sided, over every line tested
     log10_p = float(np.log10(max(special.fdtrc(1, tester.dof, gain) / 2.0, 1e-300)))
     log10_p = _corrected(log10_p, len(columns))
