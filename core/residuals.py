@@ -92,7 +92,8 @@ class LoopOptions:
         must bring it over the leaner variant too.
     generalisation : share of the fitted mean-square gain the held-out data must confirm.
     candidates_per_step : how many of the strongest findings are refitted together; the best
-        one that passes is kept.
+        one that passes is kept. Where surfaces alone fill them, a set-up effect whose gain ties
+        the strongest's is refitted beside them (:data:`SET_UP_TIE`).
     max_refits_per_step : when a batch is refused, further proposals of the same step are tried
         up to this many refits before the loop stops: the strongest machine effect of each kind
         no refit of the step has tried, whatever its share of the strongest, not the next
@@ -100,7 +101,8 @@ class LoopOptions:
         lost with them); set-up effects only ever among the strongest.
     retry_factor : a refused candidate is refitted again once its F statistic has grown by this
         factor (the model around it changed); one refused for a size that varied
-        (:data:`SPOILED_BY_THE_REST`), once another effect has been kept.
+        (:data:`SPOILED_BY_THE_REST`), or a set-up effect refused as implausible, once another
+        effect has been kept.
     contender_share : a proposal is refitted in a step's first batch only when the residual sum
         of squares it would remove is at least this share of the strongest proposal's.
     tie : candidates whose cross-validated RMS is within this share of the best are equal; the
@@ -1758,6 +1760,9 @@ VERDICTS = (
 #: lacks spoils them as much as a misfit of the candidate's own, so a candidate refused for one
 #: is refitted again at the next step after another effect is kept, whatever its F statistic.
 SPOILED_BY_THE_REST = ("not repeatable", "uneven along its line")
+#: A set-up effect whose diagnosis gain is at least this share of the strongest proposal's is
+#: refitted in the step's first batch when surfaces alone fill it (:func:`_set_up_tied`).
+SET_UP_TIE = 0.99
 #: The verdict of two set-up errors kept in one refit (:func:`_set_up_pairs`).
 TOGETHER = "kept together"
 #: A line shows an effect when what the 21 errors cannot absorb of it there reaches 4 σ.
@@ -2089,6 +2094,7 @@ def _forward(
                     for f in proposals[: options.candidates_per_step]
                     if f.gain >= options.contender_share * strongest
                 ]
+                batch += _set_up_tied(proposals, batch, strongest)
             else:
                 # the strongest were refused: the next variants of their structure mostly would
                 # be too, and a weaker effect of another kind behind them would end with the step
@@ -2111,7 +2117,7 @@ def _forward(
                 if not trial.ok:
                     refused[key] = trial.finding.f_statistic
                     state.refused_beside.pop(key, None)
-                if trial.verdict in SPOILED_BY_THE_REST:
+                if trial.verdict in SPOILED_BY_THE_REST or _set_up_too_large(trial):
                     state.refused_beside[key] = beside
                 reason, verdict = trial.reason, trial.verdict
                 if trial.ok and trial is not chosen and chosen is not None:
@@ -2161,7 +2167,7 @@ def _doubts(state: _State, chosen: _Trial, trials: list[_Trial], options: LoopOp
     key = chosen.finding.effect.key
     doubts = [
         doubt(chosen, trials, options.tie)
-        for doubt in (_alike, _unsettled, _interchangeable, _which_set_up)
+        for doubt in (_alike, _unsettled, _interchangeable, _which_set_up, _set_up_or_surface)
     ]
     state.shape_doubt[key] = np.vstack([np.atleast_2d(d.moves) for d in doubts])
     state.ambiguous[key] = [d.text for d in doubts if d.text is not None]
@@ -2810,6 +2816,48 @@ def _which_set_up(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     return _Doubt(text, deltas, tuple(rivals))
 
 
+def _set_up_or_surface(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
+    """What a kept set-up effect leaves open when only its own line shows what it explains: the
+    surfaces that pass, or are refused only for showing on one line, and predict the held-out
+    data as well (within ``tie``). A surface seen on one line alone takes any shape there, the
+    set-up error's too (blind 29039: an Abbe offset of diag_yz_pp, the direct plan's one line
+    that moves Y and Z together, and three places of a surface within 0.6 % of it); the tie rule
+    keeps the set-up error for its fewer parameters, but the plan cannot rule the surfaces out.
+
+    Returned as :func:`_interchangeable`: a warning naming them, the errors fitted beside the
+    surface that moves them most where they differ by more than :data:`UNSETTLED_RATIO` stated
+    standard uncertainties, and the differences of the errors' parameters to every surface that
+    moves one so far (one per row); report.json names them as the kept effect's rivals."""
+    effect = chosen.finding.effect
+    delta = np.zeros_like(chosen.refit.model.parameters)
+    if not isinstance(effect, (AbbeOffset, Cosine)):
+        return _Doubt(None, delta)
+    rivals = sorted(
+        (
+            trial
+            for trial in trials
+            if isinstance(trial.finding.effect, CrossAxis)
+            and (trial.ok or trial.uncorroborated)
+            and trial.score <= chosen.score * (1.0 + tie)
+        ),
+        key=lambda trial: trial.score,
+    )
+    if not rivals:
+        return _Doubt(None, delta)
+    trial, beyond, deltas = _rival_moves(chosen, rivals)
+    named = [t.finding.effect.label for t in rivals]
+    said = _moves_said(trial, beyond, AGREE)
+    text = (
+        f"{effect.label} was kept, but {_and(named)} "
+        f"predict{'s' if len(rivals) == 1 else ''} the held-out data as well (cross-validated "
+        f"RMS {chosen.score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals])}): what it "
+        f"explains shows on line {effect.line_name} alone, and this plan cannot tell that "
+        f"line's set-up from a surface seen only there{said}. Check the line's set-up and "
+        "measure it again, or measure lines along the surface's axes at other offsets"
+    )
+    return _Doubt(text, deltas, tuple(rivals))
+
+
 def _moved_text(beyond: list[tuple[float, str, float]]) -> str:
     """The three errors :func:`_moved_errors` moves most, in words, and how many more."""
     listed = ", ".join(
@@ -2920,6 +2968,33 @@ def _other_kinds(proposals: list[Finding], tried: list[_Trial], count: int) -> l
             seen.add(kind)
             out.append(finding)
     return out
+
+
+def _set_up_tied(proposals: list[Finding], batch: list[Finding], strongest: float) -> list[Finding]:
+    """When surfaces alone fill ``batch``: the strongest set-up effect outside it whose gain
+    ties the strongest proposal's (:data:`SET_UP_TIE`), as a list of at most one. Where one line
+    alone shows what is left, a surface fits it at every direction and pair alike and those
+    places fill the batch; an Abbe offset or a cosine error of that line that explains it as
+    well, with a parameter or two where the surface has many, must be refitted beside them for
+    the tie rule to prefer it. Beside any other effect it waits its turn: a drift that the
+    session's first line shows most ties a cosine error of that line in gain, and the tie rule
+    would keep the cosine for its one parameter (indep. 3300052), which the audit then takes
+    out, the line still drifting, for the next round to keep it again."""
+    if not all(isinstance(f.effect, CrossAxis) for f in batch):
+        return []
+    for finding in proposals:
+        if finding in batch or finding.effect.line_index is None:
+            continue
+        return [finding] if finding.gain >= SET_UP_TIE * strongest else []
+    return []
+
+
+def _set_up_too_large(trial: _Trial) -> bool:
+    """Whether ``trial`` refused a set-up effect (Abbe offset, cosine misalignment) as
+    implausible: the machine effect the model still lacks beside it inflates its size as much as
+    its own error does (a surface that tilts the line reads as a longer scale), so it is refitted
+    after another effect is kept, whatever its F statistic."""
+    return trial.verdict == "implausible" and trial.finding.effect.line_index is not None
 
 
 def _distinct(findings: list[Finding]) -> list[Finding]:
