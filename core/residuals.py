@@ -2167,7 +2167,7 @@ def _doubts(state: _State, chosen: _Trial, trials: list[_Trial], options: LoopOp
     key = chosen.finding.effect.key
     doubts = [
         doubt(chosen, trials, options.tie)
-        for doubt in (_alike, _unsettled, _interchangeable, _which_set_up, _set_up_or_surface)
+        for doubt in (_alike, _unsettled, _interchangeable, _which_set_up, _set_up_or_machine)
     ]
     state.shape_doubt[key] = np.vstack([np.atleast_2d(d.moves) for d in doubts])
     state.ambiguous[key] = [d.text for d in doubts if d.text is not None]
@@ -2816,17 +2816,19 @@ def _which_set_up(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     return _Doubt(text, deltas, tuple(rivals))
 
 
-def _set_up_or_surface(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
-    """What a kept set-up effect leaves open when only its own line shows what it explains: the
-    surfaces that pass, or are refused only for showing on one line, and predict the held-out
-    data as well (within ``tie``). A surface seen on one line alone takes any shape there, the
-    set-up error's too (blind 29039: an Abbe offset of diag_yz_pp, the direct plan's one line
-    that moves Y and Z together, and three places of a surface within 0.6 % of it); the tie rule
-    keeps the set-up error for its fewer parameters, but the plan cannot rule the surfaces out.
+def _set_up_or_machine(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
+    """What a kept set-up effect leaves open when a machine effect explains its line as well: the
+    machine effects that pass, or are refused only for showing on one line, and predict the
+    held-out data as well (within ``tie``). A surface seen on one line alone takes any shape
+    there, the set-up error's too (blind 29039: an Abbe offset of diag_yz_pp, the direct plan's
+    one line that moves Y and Z together, and three places of a surface within 0.6 % of it); a
+    drift that settles after the session's first line reads there as that line's short scale
+    (blind 30100: a cosine error of x_linear kept, a drift of X 0.2 % behind). The tie rule keeps
+    the set-up error for its fewer parameters, but the plan cannot rule the others out.
 
     Returned as :func:`_interchangeable`: a warning naming them, the errors fitted beside the
-    surface that moves them most where they differ by more than :data:`UNSETTLED_RATIO` stated
-    standard uncertainties, and the differences of the errors' parameters to every surface that
+    rival that moves them most where they differ by more than :data:`UNSETTLED_RATIO` stated
+    standard uncertainties, and the differences of the errors' parameters to every rival that
     moves one so far (one per row); report.json names them as the kept effect's rivals."""
     effect = chosen.finding.effect
     delta = np.zeros_like(chosen.refit.model.parameters)
@@ -2836,7 +2838,7 @@ def _set_up_or_surface(chosen: _Trial, trials: list[_Trial], tie: float) -> _Dou
         (
             trial
             for trial in trials
-            if isinstance(trial.finding.effect, CrossAxis)
+            if trial.finding.effect.line_index is None
             and (trial.ok or trial.uncorroborated)
             and trial.score <= chosen.score * (1.0 + tie)
         ),
@@ -2850,10 +2852,9 @@ def _set_up_or_surface(chosen: _Trial, trials: list[_Trial], tie: float) -> _Dou
     text = (
         f"{effect.label} was kept, but {_and(named)} "
         f"predict{'s' if len(rivals) == 1 else ''} the held-out data as well (cross-validated "
-        f"RMS {chosen.score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals])}): what it "
-        f"explains shows on line {effect.line_name} alone, and this plan cannot tell that "
-        f"line's set-up from a surface seen only there{said}. Check the line's set-up and "
-        "measure it again, or measure lines along the surface's axes at other offsets"
+        f"RMS {chosen.score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals])}): this plan "
+        f"cannot tell line {effect.line_name}'s set-up from an error of the machine that shows "
+        f"mostly there{said}. Check the line's set-up and measure it again"
     )
     return _Doubt(text, deltas, tuple(rivals))
 
