@@ -2593,17 +2593,11 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     if not isinstance(effect, CrossAxis):
         return _Doubt(None, delta)
     score, place = chosen.score, _surface_place(effect)
-    rivals = sorted(
-        (
-            trial
-            for trial in trials
-            if trial is not chosen
-            and isinstance(trial.finding.effect, CrossAxis)
-            and _surface_place(trial.finding.effect) != place
-            and (trial.ok or trial.uncorroborated)
-            and trial.score <= score * (1.0 + tie)
-        ),
-        key=lambda trial: trial.score,
+    rivals = _as_well(
+        chosen,
+        trials,
+        tie,
+        lambda other: isinstance(other, CrossAxis) and _surface_place(other) != place,
     )
     if not rivals:
         return _Doubt(None, delta)
@@ -2619,6 +2613,25 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
         "at other offsets would tell them apart"
     )
     return _Doubt(text, deltas, tuple(rivals))
+
+
+def _as_well(
+    chosen: _Trial, trials: list[_Trial], tie: float, admits: Callable[[Effect], bool]
+) -> list[_Trial]:
+    """The trials other than ``chosen`` whose effect ``admits`` accepts, that pass or are refused
+    only for showing on one line, and predict the held-out data as well (within ``tie``), best
+    first."""
+    return sorted(
+        (
+            trial
+            for trial in trials
+            if trial is not chosen
+            and admits(trial.finding.effect)
+            and (trial.ok or trial.uncorroborated)
+            and trial.score <= chosen.score * (1.0 + tie)
+        ),
+        key=lambda trial: trial.score,
+    )
 
 
 def _rival_report(trial: _Trial) -> dict[str, object]:
@@ -2834,16 +2847,7 @@ def _set_up_or_machine(chosen: _Trial, trials: list[_Trial], tie: float) -> _Dou
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, (AbbeOffset, Cosine)):
         return _Doubt(None, delta)
-    rivals = sorted(
-        (
-            trial
-            for trial in trials
-            if trial.finding.effect.line_index is None
-            and (trial.ok or trial.uncorroborated)
-            and trial.score <= chosen.score * (1.0 + tie)
-        ),
-        key=lambda trial: trial.score,
-    )
+    rivals = _as_well(chosen, trials, tie, lambda other: other.line_index is None)
     if not rivals:
         return _Doubt(None, delta)
     trial, beyond, deltas = _rival_moves(chosen, rivals)
