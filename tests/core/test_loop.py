@@ -466,3 +466,19 @@ def test_the_console_says_why_an_effect_was_taken_out_and_what_was_kept_together
     assert told == [f"   step 2, cosine misalignment of line x_lin taken out: {why} (2)"]
     # two set-up errors kept in one refit say so
     assert [r.split()[0] for r in table if r.endswith("yes, together")] == ["3"]
+
+
+def test_a_refit_within_its_uncertainty_of_nothing_is_refused_on_its_wald_statistic() -> None:
+    # χ² with 1 degree of freedom: 2 σ leaves 4.6 % (refused at the 1 % level), 3 σ 0.27 %
+    from volucal.core.residuals import NULL_LEVEL, _indistinguishable_from_nothing
+
+    assert NULL_LEVEL == 0.01
+    one = np.array([[0.25]])  # σ = 0.5
+    assert "nothing" in _indistinguishable_from_nothing(np.array([1.0]), one)
+    assert _indistinguishable_from_nothing(np.array([1.5]), one) is None
+    # two correlated parameters: along the correlation β = (1, 1) is χ² 2/1.9 (nothing); across
+    # it β = (1, −1) is χ² 2/0.1 = 20, exp(−10) on 2 degrees of freedom (something)
+    correlated = np.array([[1.0, 0.9], [0.9, 1.0]])
+    why = _indistinguishable_from_nothing(np.array([1.0, 1.0]), correlated)
+    assert why is not None and "Wald χ² 1.05 on 2 parameters" in why
+    assert _indistinguishable_from_nothing(np.array([1.0, -1.0]), correlated) is None
