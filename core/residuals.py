@@ -1311,18 +1311,31 @@ def _line_test(readings: Readings, residual: FloatArray, index: int) -> _LineTes
     return _LineTest(min(p_spread, p_peak), p_time, sigma, r, (n, valid))
 
 
-def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, Unexplained]]:
-    """Lines whose readings repeat far worse than the plan's other lines of the same quantity.
+class _Wander(NamedTuple):
+    """A line that repeats far worse than its peers (:func:`_wandering`)."""
+
+    #: its spread about its per-target, per-direction means, and its steadiest peers'
+    sigma: float
+    typical: float
+    #: false-alarm level of the F test, for one line
+    p: float
+    #: how many peers of its quantity it was compared with
+    peers: int
+
+
+def _wandering(identification: Identification, alpha: float) -> dict[int, _Wander]:
+    """Lines whose readings repeat far worse than the plan's other lines of the same quantity,
+    by index.
 
     Each line's weight is its own repeatability, so an error that changes from run to run (a
     laser or a reflector that wanders, a beam cut and re-zeroed, an error periodic in time) only
     widens that line's spread and leaves no structure against it. Measured by the same optics in
     one session, lines of one quantity repeat alike: a line whose spread about its per-target,
-    per-direction means, in what the final model leaves, is :data:`PEER_SPREAD_RATIO` times that
+    per-direction means, in what the model leaves, is :data:`PEER_SPREAD_RATIO` times that
     of its steadiest peers (the lower quartile of their variances: an error that varies in time
     along one axis spoils every line that moves it, most of a plan, and the median with them;
     an F test at ``alpha``, Bonferroni over the lines, with the median peer's degrees of
-    freedom) is reported, with its index."""
+    freedom) wanders."""
     from scipy import special
 
     readings = identification.readings
@@ -1336,7 +1349,7 @@ def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, U
         dof = int(mask.sum()) - np.unique(_cell_key(readings, index)).size
         if dof > 0:
             spread[index] = (float(np.sum(rest**2)) / dof, dof)
-    out = []
+    out = {}
     for index, (variance, dof) in spread.items():
         line = readings.lines[index]
         peers = [
@@ -1351,10 +1364,20 @@ def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, U
             continue
         peer_dof = int(np.median([d for _, d in peers]))
         p = float(special.fdtrc(dof, peer_dof, variance / reference))
-        if p * count >= alpha:
-            continue
+        if p * count < alpha:
+            out[index] = _Wander(float(np.sqrt(variance)), float(np.sqrt(reference)), p, len(peers))
+    return out
+
+
+def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, Unexplained]]:
+    """Lines whose readings repeat far worse than the plan's other lines of the same quantity
+    (:func:`_wandering`), reported with their indices."""
+    readings = identification.readings
+    out = []
+    for index, wander in _wandering(identification, alpha).items():
+        line = readings.lines[index]
         unit = "µrad" if line.spec.quantity == "angular" else "µm"
-        sigma, typical = float(np.sqrt(variance)), float(np.sqrt(reference))
+        sigma, typical = wander.sigma, wander.typical
         shares = _shares(readings, identification.residual, index)
         out.append(
             (
@@ -1364,15 +1387,15 @@ def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, U
                     description=(
                         f"{line.spec.quantity} line {line.name} repeats to {sigma:.3g} {unit}, "
                         f"{sigma / typical:.1f} times the {typical:.3g} {unit} that the steadiest "
-                        f"quarter of the plan's {len(peers)} other {line.spec.quantity} lines "
+                        f"quarter of the plan's {wander.peers} other {line.spec.quantity} lines "
                         "repeat to (F test, log10 false alarm "
-                        f"{_log10_text(p)}): its readings change between runs or "
+                        f"{_log10_text(wander.p)}): its readings change between runs or "
                         "within a run in a way no effect of the catalogue follows (a laser or "
                         "a reflector that wanders, a beam cut and re-zeroed, an error that "
                         "varies in time); weighted by its own spread, it bends the 21 errors "
                         "less than its size"
                     ),
-                    magnitude_um=float(np.sqrt(max(variance - reference, 0.0))),
+                    magnitude_um=float(np.sqrt(max(sigma**2 - typical**2, 0.0))),
                     correlates_with=shares,
                 ),
             )
@@ -1692,6 +1715,12 @@ def _judge(
     null = _indistinguishable_from_nothing(values, covariance)
     if null is not None:
         return refused(null, "not confirmed")
+    if effect.line_index is not None:
+        wander = _wandering(current, options.alpha).get(effect.line_index)
+        if wander is not None:
+            quantity = current.readings.lines[effect.line_index].spec.quantity
+            unit = "µrad" if quantity == "angular" else "µm"
+            return refused(_set_up_of_wandering_line(wander, unit), "not repeatable")
     lonely = _uncorroborated(effect, energy, refit.readings) or _confirmed_by_one_line(
         effect, tester, cv, cv_new, rows
     )
@@ -1963,6 +1992,27 @@ def _beyond(
             f"it (log10 false alarm {change.log10_p:.1f}), far beyond the noise; {meaning}"
         )
     return None
+
+
+def _set_up_of_wandering_line(wander: _Wander, unit: str) -> str:
+    """Why a set-up effect (an Abbe offset, a cosine misalignment) of a line that repeats far
+    worse than its peers (:func:`_wandering`) is refused.
+
+    Its readings change between runs by more than anything of the catalogue: its laser or
+    reflector wanders, or an error varies in time. What such a change leaves in the line's
+    per-target means is as much the line's as a lever arm or a misalignment is, and a change
+    that keeps step with the runs (an error periodic in time, each run timed alike) leaves a
+    shape no test of repeatability can tell from a set-up's: one line holds both, and the
+    line's set-up is the thing in doubt (blind 33105: a Y error periodic in time, kept as a
+    (53, 32, −28) mm Abbe offset of the wandering diagonal). The line stays reported
+    unexplained, its readings weighted by their own spread."""
+    return (
+        f"not repeatable: its line repeats to {wander.sigma:.3g} {unit}, "
+        f"{wander.sigma / wander.typical:.1f} times its steadiest peers' {wander.typical:.3g} "
+        f"{unit} (F test, log10 false alarm "
+        f"{_log10_text(wander.p)}): a set-up fitted to readings that change between runs "
+        "cannot be told from their change; refused"
+    )
 
 
 def _unrepeatable(change: _Change, options: LoopOptions, exact_shape: bool = False) -> str | None:
