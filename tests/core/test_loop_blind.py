@@ -61,7 +61,7 @@ read the method), for behaviours its suite showed missing:
   well and moves the errors fitted beside it) is kept with a warning naming the errors that
   move, and their stated uncertainties include the move; so do the errors beside a surface
   whose direction and pair the plan cannot tell, and beside a set-up effect (a cosine error)
-  that the same effect on another line fits identically.
+  that the same effect on another line fits identically;
 - held out, every fold fits the model the fit fitted, no freer: a cycle only the freer folds
   predicted is not kept, and a surface they had half taken is confirmed and kept at its place.
 
