@@ -204,13 +204,13 @@ def _cross_validate_blocks(
         ends = (target <= target.min()) | (target >= target.max())
         fold_of[mask] = np.where(ends, -1, (block + index) % folds)
     own = system.own_columns()
-    # every fold in the column scaling and with the rank limit of the whole fit: a fold has
-    # fewer readings, so each eigenvalue of its normal matrix is at most the whole one's, and
-    # what the fit takes as unseen a fold takes as unseen too. Limited by its own largest
-    # eigenvalue instead, a fold could fit a direction the fit leaves at zero, and the held-out
-    # error would measure a freer model than the one identified (blind 32115: three directions
-    # unseen in the fit, one in each fold; held out, the 21 errors predicted 1.5 times better
-    # than they fitted)
+    # every fold in the column scaling and with the rank limit of the whole fit: a fold judges
+    # what it sees by the fit's yardstick, not its own (it has fewer readings, so each
+    # eigenvalue of its normal matrix is at most the fit's). Limited by its own largest
+    # eigenvalue, a fold fitted directions the fit leaves at zero, and the held-out error
+    # measured a freer model than the one identified (blind 32115: three directions unseen in
+    # the fit, one in each fold, now two; held out, the 21 errors predicted the blocks 1.5 times
+    # better than they fitted them, now worse, as a least-squares prediction must)
     scale = column_scale(system.normal)
     limit = rank_limit(system.normal, scale)
     for k in range(folds):
