@@ -170,6 +170,20 @@ def test_two_kept_surfaces_cannot_both_stand_for_one_injected() -> None:
     assert not outcome.exact_up_to_named_rivals
 
 
+def test_two_kept_bumps_of_one_place_that_the_strict_row_counts_exact_are_exact_up_to_rivals() -> (
+    None
+):
+    # blind 34084: two bumps of Y in Y kept beside one of X in Z, the injected places exactly;
+    # with no rival named, the rivals row must count what the strict row counts
+    bump = ("local", "Y in Y")
+    outcome = _outcome({bump: ["y_linear", "diag_xy_pp"]})
+    outcome.kept = {bump}
+    local = {"kind": "local", "axis": "Y", "parameters": {"direction": "Y"}}
+    outcome.effects_report = [local, dict(local)]
+    assert outcome.exact
+    assert outcome.exact_up_to_named_rivals
+
+
 SQUARE = {"EC0Y": 12.0, "EB0Z": -7.0, "EA0Z": 3.0}
 ALL = set(SQUARE) | {"EXY", "EYX", "EXZ", "EZX", "EYZ", "EZY"}
 

@@ -325,7 +325,9 @@ class Outcome:
             {effect_place(e)} | {effect_place(r) for r in e.get("rivals", {}).get("effects", [])}
             for e in self.effects_report
         ]
-        return any(
+        # two kept effects of one place (two bumps of one axis and direction) are exact as the
+        # strict row counts them; a rival stands in for one kept effect, never for two
+        return self.exact or any(
             len(set(choice)) == len(choice) and set(choice) == self.expected
             for choice in itertools.product(*options)
         )
