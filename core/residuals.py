@@ -1239,7 +1239,7 @@ def _unexplained_by_line(
         means = sums[valid] / n[valid]
         worst = int(np.argmax(np.abs(means)))
         position = float(line.data.targets_mm[np.flatnonzero(valid)[worst]])
-        unit = "µrad" if line.spec.quantity == "angular" else "µm"
+        unit = _unit(line.spec)
         magnitude = float(np.max(np.abs(means)))
         rms = float(np.sqrt(np.mean(means**2)))
         follows = max(shares, key=lambda key: shares[key])
@@ -1321,6 +1321,8 @@ class _Wander(NamedTuple):
     p: float
     #: how many peers of its quantity it was compared with
     peers: int
+    #: the unit of its readings (µm or µrad)
+    unit: str
 
 
 def _wandering(identification: Identification, alpha: float) -> dict[int, _Wander]:
@@ -1365,7 +1367,9 @@ def _wandering(identification: Identification, alpha: float) -> dict[int, _Wande
         peer_dof = int(np.median([d for _, d in peers]))
         p = float(special.fdtrc(dof, peer_dof, variance / reference))
         if p * count < alpha:
-            out[index] = _Wander(float(np.sqrt(variance)), float(np.sqrt(reference)), p, len(peers))
+            out[index] = _Wander(
+                float(np.sqrt(variance)), float(np.sqrt(reference)), p, len(peers), _unit(line.spec)
+            )
     return out
 
 
@@ -1376,8 +1380,7 @@ def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, U
     out = []
     for index, wander in _wandering(identification, alpha).items():
         line = readings.lines[index]
-        unit = "µrad" if line.spec.quantity == "angular" else "µm"
-        sigma, typical = wander.sigma, wander.typical
+        unit, sigma, typical = wander.unit, wander.sigma, wander.typical
         shares = _shares(readings, identification.residual, index)
         out.append(
             (
@@ -1401,6 +1404,11 @@ def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, U
             )
         )
     return out
+
+
+def _unit(spec: LineSpec) -> str:
+    """The unit of a line's readings."""
+    return "µrad" if spec.quantity == "angular" else "µm"
 
 
 def _log10_text(p: float) -> str:
@@ -1718,9 +1726,7 @@ def _judge(
     if effect.line_index is not None:
         wander = _wandering(current, options.alpha).get(effect.line_index)
         if wander is not None:
-            quantity = current.readings.lines[effect.line_index].spec.quantity
-            unit = "µrad" if quantity == "angular" else "µm"
-            return refused(_set_up_of_wandering_line(wander, unit), "not repeatable")
+            return refused(_set_up_of_wandering_line(wander), "not repeatable")
     lonely = _uncorroborated(effect, energy, refit.readings) or _confirmed_by_one_line(
         effect, tester, cv, cv_new, rows
     )
@@ -1994,7 +2000,7 @@ def _beyond(
     return None
 
 
-def _set_up_of_wandering_line(wander: _Wander, unit: str) -> str:
+def _set_up_of_wandering_line(wander: _Wander) -> str:
     """Why a set-up effect (an Abbe offset, a cosine misalignment) of a line that repeats far
     worse than its peers (:func:`_wandering`) is refused.
 
@@ -2007,9 +2013,9 @@ def _set_up_of_wandering_line(wander: _Wander, unit: str) -> str:
     (53, 32, −28) mm Abbe offset of the wandering diagonal). The line stays reported
     unexplained, its readings weighted by their own spread."""
     return (
-        f"not repeatable: its line repeats to {wander.sigma:.3g} {unit}, "
+        f"not repeatable: its line repeats to {wander.sigma:.3g} {wander.unit}, "
         f"{wander.sigma / wander.typical:.1f} times its steadiest peers' {wander.typical:.3g} "
-        f"{unit} (F test, log10 false alarm "
+        f"{wander.unit} (F test, log10 false alarm "
         f"{_log10_text(wander.p)}): a set-up fitted to readings that change between runs "
         "cannot be told from their change; refused"
     )
