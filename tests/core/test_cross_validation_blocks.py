@@ -55,13 +55,15 @@ def test_the_report_states_the_cross_validated_error_the_loop_judged_by() -> Non
     report = close_loop(measurement).to_report()
     cv = report["cv_rms_um"]
     assert cv["method"] == "held-out blocks of targets"
-    # such blocks are counted and left out of the figures, not averaged in: what is reported
-    # is a prediction error (the noise is 0.1 µm), not an extrapolation of tens of µm
-    assert cv["blocks_left_out"] > 0
+    # blocks a fold extrapolates wildly would be counted and left out of the figures, not
+    # averaged in; with every fold holding at zero what the fit holds at zero there are none
+    # here, and what is reported is a prediction error near the noise (0.1 µm). When folds
+    # fitted directions the fit leaves unseen, 17 blocks were wild and the rest 0.46 µm
+    assert cv["blocks_left_out"] == 0
     fit = report["residual_rms_um"]
     # before the loop, the reversal the model lacks is as large held out as in-sample (0.9 µm)
     assert cv["before_loop"] < 1.5 * fit["before_loop"]
-    assert cv["after_loop"] < 0.6 * cv["before_loop"]
+    assert cv["after_loop"] < 1.5 * fit["after_loop"]
     assert set(cv["all_lines"]) == {"before_loop", "after_loop"}
     assert [e["label"] for e in report["effects"]] == ["reversal X"]
 
@@ -86,6 +88,49 @@ def test_held_out_blocks_predict_no_better_than_the_fit_fits_them() -> None:
     readings = flatten(measurement)
     fit = identify(measurement, IdentifyOptions(), readings=readings)
     cv = cross_validate(fit.system, readings, fit.identifiability.redundant_lines)
+    assert cv.method == "held-out blocks of targets"
+    held = np.isfinite(cv.residual)
+    weights = fit.system.weights[held]
+    held_out = float(np.sum(weights * cv.residual[held] ** 2))
+    fitted = float(np.sum(weights * fit.residual[held] ** 2))
+    assert held_out >= fitted, (held_out, fitted)
+
+
+def test_held_out_blocks_hold_at_zero_what_a_fit_with_effects_holds_at_zero() -> None:
+    # the generator of tests/blind (direct plan, 0.05 µm noise): a 4.6 µm cycle of Z, a 4.3 µm
+    # reversal of X and a surface EZ over X×Z. With the cycle and the reversal in the model (as
+    # the loop fits them: linearised about the 21 errors identified without them), the fit holds
+    # at zero the three directions the plan leaves unseen at zero errors, and its linearisation
+    # sees two of them a little (second-order couplings). The folds fitted those two: held out,
+    # the model predicted its blocks to a weighted sum of squares of 11050 against 31465 fitted,
+    # and the loop refused the surface, confirmed at 22 %
+    import tempfile
+    from dataclasses import replace
+
+    from volucal.core.effects import Cyclic, Reversal
+    from volucal.core.io.plan import import_plan, load_plan
+
+    from tests.blind.scenarios import write_scenario
+
+    with tempfile.TemporaryDirectory(prefix="volucal-blind-") as tmp:
+        plan, _ = write_scenario(34086, tmp)
+        measurement = import_plan(load_plan(plan)).measurement
+    readings = flatten(measurement)
+    options = IdentifyOptions()
+    base = identify(measurement, options, readings=readings)
+    machine = measurement.machine
+    effects = (
+        Cyclic("Z", 29.468, (1, 2), machine.reference("Z")),
+        Reversal("X", 0, machine.stroke("X")),
+    )
+    fit = identify(
+        measurement,
+        replace(options, redundancy=False, max_iterations=1),
+        effects=effects,
+        readings=readings,
+        initial=base.model,
+    )
+    cv = cross_validate(fit.system, readings, base.identifiability.redundant_lines)
     assert cv.method == "held-out blocks of targets"
     held = np.isfinite(cv.residual)
     weights = fit.system.weights[held]
