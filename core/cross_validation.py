@@ -213,7 +213,7 @@ def _cross_validate_blocks(
     # better than they fitted them, now worse, as a least-squares prediction must)
     scale = column_scale(system.normal)
     if system.unseen is not None:
-        scale, fit_null = system.unseen
+        scale, fit_unseen = system.unseen
     limit = rank_limit(system.normal, scale)
     for k in range(folds):
         held = fold_of == k
@@ -231,7 +231,7 @@ def _cross_validate_blocks(
             # of them, which the fit does not use (blind 34086: with a 4.6 µm cycle of Z in the
             # model, three unseen in the fit, one in the system; held out, the fit predicted its
             # blocks to a weighted SSR of 11050 against 31465 fitted)
-            null = elimination.null_space_beside(limit, fit_null.vectors)
+            null = elimination.null_space_beside(limit, fit_unseen)
         x = ConstrainedSystem.of(elimination, null).solve() * scale
         rows = np.flatnonzero(held)
         residual[held] = system.y[held] - _apply_rows(system, rows, x)

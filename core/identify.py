@@ -624,7 +624,7 @@ def identify(
     assert system is not None and subspace is not None and rank_info is not None
     assert restricted is not None
     # what was kept for the solves is not part of the result
-    system.unseen = (subspace.scale, subspace.null)
+    system.unseen = (subspace.scale, subspace.null.vectors)
     system._parts = None
     system._eliminations.clear()
     model = model.with_parameters(gauge.matrix @ theta)

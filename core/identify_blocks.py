@@ -236,30 +236,32 @@ class Elimination:
         directions a line does not determine."""
         values, vectors = self.eigen
         null_g = vectors[:, values <= limit]
-        glob_vectors = np.zeros((self.size, null_g.shape[1]))
-        glob_vectors[self.glob] = null_g
-        for block in self.lines:
-            glob_vectors[block.columns] = -block.inverse @ block.coupling @ null_g[block.touched]
-        return NullSpace(self.size, glob_vectors, [b.null for b in self.lines], self.lines)
+        return NullSpace(
+            self.size, self._completed(null_g), [b.null for b in self.lines], self.lines
+        )
 
     def null_space_beside(self, limit: float, held: FloatArray) -> FloatArray:
         """The directions (scaled, P × d) to hold at zero when those of ``held`` (P × k, scaled,
         e.g. another system's null vectors, linearly independent on the global columns) are
         held at zero whether this system sees them or not: ``held``, then the null vectors of
         the reduced system on the complement of held's global part, completed on the lines' own
-        columns (x_o = −N_oo⁺N_og x_g)."""
+        columns."""
         held_g = held[self.glob]
         if held_g.shape[1] == 0:
             return self.null_space(limit).vectors
         q, _ = np.linalg.qr(held_g, mode="complete")
         free = q[:, held_g.shape[1] :]
         values, vectors = np.linalg.eigh(free.T @ self.reduced @ free)
-        null_g = free @ vectors[:, values <= limit]
-        extra = np.zeros((self.size, null_g.shape[1]))
-        extra[self.glob] = null_g
+        return np.hstack([held, self._completed(free @ vectors[:, values <= limit])])
+
+    def _completed(self, null_g: FloatArray) -> FloatArray:
+        """Directions of the reduced system (g × d) completed on the lines' own columns
+        (x_o = −N_oo⁺N_og x_g), P × d."""
+        out = np.zeros((self.size, null_g.shape[1]))
+        out[self.glob] = null_g
         for block in self.lines:
-            extra[block.columns] = -block.inverse @ block.coupling @ null_g[block.touched]
-        return np.hstack([held, extra])
+            out[block.columns] = -block.inverse @ block.coupling @ null_g[block.touched]
+        return out
 
 
 @dataclass(eq=False)

@@ -28,7 +28,7 @@ from .errors import (
     axis_error_ids,
     gauge_null_space,
 )
-from .identify_blocks import Elimination, LinePart, NullSpace, largest_eigenvalue
+from .identify_blocks import Elimination, LinePart, largest_eigenvalue
 from .kinematics import VolumetricModel, error_value_jacobian, rotation_error
 from .machine import AXES, AXIS_INDEX
 from .readings import QUANTITY_CODE, Readings
@@ -80,11 +80,11 @@ class LinearSystem:
     reading_bounds: NDArray[np.int64]
     #: the effects' separable directions (see :func:`separable_reduction`), if restricted
     reduction: Reduction | None = None
-    #: the column scaling and the directions (scaled) the fit holds at zero, in the reduced
-    #: unknowns, once the system is fitted: what the plan leaves unseen at zero errors. A
+    #: once the system is fitted, its column scaling and the directions (scaled, P × d, in the
+    #: reduced unknowns) the fit holds at zero: what the plan leaves unseen at zero errors. A
     #: linearisation about identified errors may see a little of them through second-order
     #: couplings, which the fit does not use; cross-validation must not use them either
-    unseen: tuple[FloatArray, NullSpace] | None = None
+    unseen: tuple[FloatArray, FloatArray] | None = None
     #: each line's part once built, while :meth:`keeping_parts` is in effect
     _parts: list[LinePart | None] | None = field(default=None, init=False, repr=False)
     #: eliminations of the lines' own columns already made (see :func:`eliminate`)
