@@ -3263,7 +3263,7 @@ def _backward(
 #: misses something that spreads over the plan, and a flexible candidate takes a few per cent of
 #: any such structure held out: an effect kept beside it must earn :data:`WIDESPREAD_MARGIN_FACTOR`
 #: times the margin in the backward pass. Outside effects (an error periodic in time, twitches
-#: on four lines) were kept as surfaces earning 3.6–3.7 % with 9 of 21 and 22 of 40 lines left
+#: on four lines) were kept as surfaces earning 3.6–3.7 % with 9 of 21 and 22 of 49 lines left
 #: unexplained; effects kept beside as much unexplained structure earned 13.9–39.8 % (blind
 #: 33180, 35002, 35107, 36063, 36111).
 WIDESPREAD_SHARE = 0.25
