@@ -211,9 +211,12 @@ def _cross_validate_blocks(
     # measured a freer model than the one identified (blind 32115: three directions unseen in
     # the fit, one in each fold, now two; held out, the 21 errors predicted the blocks 1.5 times
     # better than they fitted them, now worse, as a least-squares prediction must)
-    scale = column_scale(system.normal)
-    if system.unseen is not None:
-        scale, fit_unseen = system.unseen
+    # and nothing the fit holds at zero: the fit's unseen directions were decided on the
+    # first-order system, and the linearisation about identified errors sees a little of them,
+    # which the fit does not use (blind 34086: with a 4.6 µm cycle of Z in the model, three
+    # unseen in the fit, one in the system; held out, the fit predicted its blocks to a weighted
+    # SSR of 11050 against 31465 fitted). A system never fitted holds nothing beyond its own.
+    scale, fit_unseen = system.unseen or (column_scale(system.normal), np.zeros((system.size, 0)))
     limit = rank_limit(system.normal, scale)
     for k in range(folds):
         held = fold_of == k
@@ -223,15 +226,7 @@ def _cross_validate_blocks(
             return system.line_part(index, keep)
 
         elimination = Elimination.of(part, own, system.size, scale, limit)
-        if system.unseen is None:
-            null = elimination.null_space(limit).vectors
-        else:
-            # and nothing the fit holds at zero: the fit's unseen directions were decided on the
-            # first-order system, and the linearisation about identified errors sees a little
-            # of them, which the fit does not use (blind 34086: with a 4.6 µm cycle of Z in the
-            # model, three unseen in the fit, one in the system; held out, the fit predicted its
-            # blocks to a weighted SSR of 11050 against 31465 fitted)
-            null = elimination.null_space_beside(limit, fit_unseen)
+        null = elimination.null_space_beside(limit, fit_unseen)
         x = ConstrainedSystem.of(elimination, null).solve() * scale
         rows = np.flatnonzero(held)
         residual[held] = system.y[held] - _apply_rows(system, rows, x)

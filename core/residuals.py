@@ -3235,19 +3235,20 @@ def _backward(
         cost, effect, refit, cv_new, with_it, without = min(costs, key=lambda c: c[0])
         if cost >= needed:
             break
-        if widespread and cost >= options.margin:
-            reason = (
-                f"removed in the backward pass: without it the cross-validated RMS is "
-                f"{with_it:.4g} → {without:.4g} ({100 * cost:+.1f} %), while {left} of "
-                f"{len(current.readings.lines)} lines stay unexplained beside it: so small a "
-                f"share of structure that spreads over the plan (less than "
+        reason = (
+            f"removed in the backward pass: without it the cross-validated RMS is "
+            f"{with_it:.4g} → {without:.4g} ({100 * cost:+.1f} %), "
+        )
+        if cost >= options.margin:  # widespread: beyond the margin, below twice it
+            reason += (
+                f"while {left} of {len(current.readings.lines)} lines stay unexplained beside "
+                "it: so small a share of structure that spreads over the plan (less than "
                 f"{100 * needed:.0f} %) is what any shape takes of it, not this effect"
             )
         else:
-            reason = (
-                f"removed in the backward pass: without it the cross-validated RMS is "
-                f"{with_it:.4g} → {without:.4g} ({100 * cost:+.1f} %), less than the "
-                f"{100 * options.margin:.0f} % margin; a later effect explains what it did"
+            reason += (
+                f"less than the {100 * options.margin:.0f} % margin; a later effect explains "
+                "what it did"
             )
         steps.append(
             _later_step(
