@@ -250,7 +250,7 @@ def test_two_abbe_offsets_that_hide_each_other_are_kept_together() -> None:
     for line, injected in offsets.items():
         fitted = np.array(kept[line]["offset_mm"])
         std = np.array(kept[line]["offset_std_mm"])
-        moved = std > 0  # the offset along the beam reads nothing on the line
+        moved = std > 1e-9  # the offset along the beam reads nothing on the line (round-off)
         assert np.all(abs(fitted - injected["offset_mm"])[moved] <= 3.0 * std[moved]), line
     assert not report["unexplained"], report["unexplained"]
 
