@@ -2330,12 +2330,8 @@ def _set_up_pairs(
     pairs = []
     for finding in partners:
         effects = _with(list(first.refit.effects), finding.effect, current.model.machine)
-        refit, cv_new = fit(effects, current.model)
-        pair = (
-            _judge(first.finding, current, cv, refit, cv_new, options),
-            _judge(finding, current, cv, refit, cv_new, options),
-        )
-        if pair[0].ok and pair[1].ok:
+        pair = _judged_pair(first.finding, finding, effects, fit, current, cv, options)
+        if pair is not None:
             pairs.append(pair)
     return _ranked_pairs(pairs)
 
@@ -2375,14 +2371,29 @@ def _one_line_set_up(
         effects = _with(
             _with(kept, offset.effect, current.model.machine), tilt.effect, current.model.machine
         )
-        refit, cv_new = fit(effects, current.model)
-        pair = (
-            _judge(offset, current, cv, refit, cv_new, options),
-            _judge(tilt, current, cv, refit, cv_new, options),
-        )
-        if pair[0].ok and pair[1].ok:
+        pair = _judged_pair(offset, tilt, effects, fit, current, cv, options)
+        if pair is not None:
             pairs.append(pair)
     return _ranked_pairs(pairs)
+
+
+def _judged_pair(
+    first: Finding,
+    second: Finding,
+    effects: list[Effect],
+    fit: _Fitter,
+    current: Identification,
+    cv: CrossValidation,
+    options: LoopOptions,
+) -> tuple[_Trial, _Trial] | None:
+    """Two findings refitted together in ``effects``, each judged by every rule against the
+    current model; None unless both pass."""
+    refit, cv_new = fit(effects, current.model)
+    pair = (
+        _judge(first, current, cv, refit, cv_new, options),
+        _judge(second, current, cv, refit, cv_new, options),
+    )
+    return pair if pair[0].ok and pair[1].ok else None
 
 
 def _ranked_pairs(pairs: list[tuple[_Trial, _Trial]]) -> list[tuple[_Trial, _Trial]]:
