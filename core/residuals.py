@@ -1787,11 +1787,10 @@ def _on_common_rows(trials: list[_Trial]) -> list[_Trial]:
 
 
 #: A step's decision in a few words (report.json ``loop[].verdict``): kept; kept together with
-#: another set-up error in one refit (:func:`_set_up_pairs`, :func:`_one_line_set_up`); passed
-#: every rule but another candidate of the step was kept; refused by rule (a) plausibility, (b)
-#: one line only, (c) the margin, (d) generalisation or (e) repeatability; a kept effect's
-#: searched quantity estimated again; a kept effect taken out by the backward pass or the final
-#: audit.
+#: another set-up error in one refit (:func:`_set_up_pairs`); passed every rule but
+#: another candidate of the step was kept; refused by rule (a) plausibility, (b) one line only,
+#: (c) the margin, (d) generalisation or (e) repeatability; a kept effect's searched quantity
+#: estimated again; a kept effect taken out by the backward pass or the final audit.
 VERDICTS = (
     "kept",
     "kept together",
@@ -1816,8 +1815,7 @@ NULL_LEVEL = 1e-2
 #: A set-up effect whose diagnosis gain is at least this share of the strongest proposal's is
 #: refitted in the step's first batch when surfaces alone fill it (:func:`_set_up_tied`).
 SET_UP_TIE = 0.99
-#: The verdict of two set-up errors kept in one refit (:func:`_set_up_pairs`,
-#: :func:`_one_line_set_up`).
+#: The verdict of two set-up errors kept in one refit (:func:`_set_up_pairs`).
 TOGETHER = "kept together"
 #: A line shows an effect when what the 21 errors cannot absorb of it there reaches 4 σ.
 SHOWN_SIGMA2 = 16.0
@@ -2203,15 +2201,11 @@ def _forward(
                 )
         if chosen is None:
             pairs = _set_up_pairs(tried_this_step, fit, current, cv, kept, options)
-            same_line = not pairs
-            if same_line:
-                pairs = _one_line_set_up(tried_this_step, fit, current, cv, kept, options)
             if not pairs:
                 break
             pair = min(pairs, key=lambda p: p[1].score)
             for trial, partner in (pair, pair[::-1]):
-                together = _together_on_its_line if same_line else _together
-                reason = f"{trial.reason}; {together(partner)}"
+                reason = f"{trial.reason}; {_together(trial, partner)}"
                 steps.append(_step(number, trial, True, reason, current, cv, verdict=TOGETHER))
             # the partner's line: its Abbe offset or its cosine error, which the plan may not tell
             _doubts(state, pair[1], [p[1] for p in pairs], options)
@@ -2297,17 +2291,46 @@ def _set_up_pairs(
     kept: list[Effect],
     options: LoopOptions,
 ) -> list[tuple[_Trial, _Trial]]:
-    """Two set-up errors of two lines that each predict the held-out data too little alone but
-    together pass every rule, as two trials of one refit: one pair per set-up of the second
-    line that passes (none, one or two).
+    """Two set-up errors that each fail alone but together pass every rule, as two trials of
+    one refit, each judged against the current model on its own: those of two lines
+    (:func:`_two_lines_set_ups`), else a line's Abbe offset and cosine error
+    (:func:`_one_line_set_up`). Their partners are ranked over the readings every pair predicts
+    (one refit per pair)."""
+
+    def judged(
+        candidates: list[tuple[Finding, Finding, list[Effect]]],
+    ) -> list[tuple[_Trial, _Trial]]:
+        pairs = []
+        for first, second, effects in candidates:
+            refit, cv_new = fit(effects, current.model)
+            pair = (
+                _judge(first, current, cv, refit, cv_new, options),
+                _judge(second, current, cv, refit, cv_new, options),
+            )
+            if pair[0].ok and pair[1].ok:
+                pairs.append(pair)
+        return pairs
+
+    machine = current.model.machine
+    pairs = judged(_two_lines_set_ups(tried, kept, machine, options)) or judged(
+        _one_line_set_up(tried, kept, machine)
+    )
+    partnered = _on_common_rows([p[1] for p in pairs])
+    return [(p[0], q) for p, q in zip(pairs, partnered, strict=True)]
+
+
+def _two_lines_set_ups(
+    tried: list[_Trial], kept: list[Effect], machine: Machine, options: LoopOptions
+) -> list[tuple[Finding, Finding, list[Effect]]]:
+    """Set-up errors of two lines to refit together (:func:`_set_up_pairs`): one pair per set-up
+    of the second line (none, one or two), with the effects of its refit.
 
     Where two lines are misaligned, the 21 errors bend to share each line's error between both:
     the residual of either holds only part of its own error (indep. 3300056: 3.2 of 7.5 ppm and
     5.9 of 9.4), so either alone leaves the other's share in the model and predicts the held-out
     lines no better. Held with the best of a step's set-up candidates refused only for the
     margin, the other line's error shows whole: the strongest set-up finding of another line in
-    that refit's residual (its Abbe offset and cosine error both tried) is refitted with it, and
-    the pair is judged against the current model by every rule, each effect on its own."""
+    that refit's residual (its Abbe offset and cosine error both tried) is refitted with it."""
     held = [
         t for t in tried if t.verdict == "below margin" and t.finding.effect.line_index is not None
     ]
@@ -2327,13 +2350,9 @@ def _set_up_pairs(
     if not others:
         return []
     partners = [f for f in others if f.effect.line_index == others[0].effect.line_index]
-    pairs = []
-    for finding in partners:
-        effects = _with(list(first.refit.effects), finding.effect, current.model.machine)
-        pair = _judged_pair(first.finding, finding, effects, fit, current, cv, options)
-        if pair is not None:
-            pairs.append(pair)
-    return _ranked_pairs(pairs)
+    return [
+        (first.finding, f, _with(list(first.refit.effects), f.effect, machine)) for f in partners
+    ]
 
 
 #: Refusals of a line's Abbe offset and cosine error alone that the other error of the same
@@ -2343,79 +2362,42 @@ SPOILED_BY_ITS_PARTNER = ("implausible", "uneven along its line", "below margin"
 
 
 def _one_line_set_up(
-    tried: list[_Trial],
-    fit: _Fitter,
-    current: Identification,
-    cv: CrossValidation,
-    kept: list[Effect],
-    options: LoopOptions,
-) -> list[tuple[_Trial, _Trial]]:
-    """A line's Abbe offset and its cosine error, each refused alone this step, refitted
-    together and judged each by every rule: one pair per line where both pass.
+    tried: list[_Trial], kept: list[Effect], machine: Machine
+) -> list[tuple[Finding, Finding, list[Effect]]]:
+    """A line's Abbe offset and its cosine error to refit together (:func:`_set_up_pairs`),
+    each refused alone this step: one pair per line, with the effects of its refit.
 
     A beam set up off the reflector's path is often tilted too. Either error alone then
     takes the other's share in its own shape: the lever arm grows to explain the scale
     (blind 37156: an offset of 80 mm and a 3.4 mrad tilt on one diagonal; the offset alone
     fitted 146 mm, beyond the 100 mm a set-up can be off) and the scale, to explain the
     lever arm's term in the angles, changes along the line."""
-    by_line: dict[int, dict[type, _Trial]] = {}
+    by_line: dict[int, dict[type, Finding]] = {}
     for trial in tried:
         effect = trial.finding.effect
         if effect.line_index is not None and trial.verdict in SPOILED_BY_ITS_PARTNER:
-            by_line.setdefault(effect.line_index, {})[type(effect)] = trial
-    pairs = []
-    for alone in by_line.values():
-        if AbbeOffset not in alone or Cosine not in alone:
-            continue
-        offset, tilt = alone[AbbeOffset].finding, alone[Cosine].finding
-        effects = _with(
-            _with(kept, offset.effect, current.model.machine), tilt.effect, current.model.machine
+            by_line.setdefault(effect.line_index, {})[type(effect)] = trial.finding
+    return [
+        (
+            alone[AbbeOffset],
+            alone[Cosine],
+            _with(_with(kept, alone[AbbeOffset].effect, machine), alone[Cosine].effect, machine),
         )
-        pair = _judged_pair(offset, tilt, effects, fit, current, cv, options)
-        if pair is not None:
-            pairs.append(pair)
-    return _ranked_pairs(pairs)
+        for alone in by_line.values()
+        if AbbeOffset in alone and Cosine in alone
+    ]
 
 
-def _judged_pair(
-    first: Finding,
-    second: Finding,
-    effects: list[Effect],
-    fit: _Fitter,
-    current: Identification,
-    cv: CrossValidation,
-    options: LoopOptions,
-) -> tuple[_Trial, _Trial] | None:
-    """Two findings refitted together in ``effects``, each judged by every rule against the
-    current model; None unless both pass."""
-    refit, cv_new = fit(effects, current.model)
-    pair = (
-        _judge(first, current, cv, refit, cv_new, options),
-        _judge(second, current, cv, refit, cv_new, options),
+def _together(trial: _Trial, partner: _Trial) -> str:
+    """Why ``trial`` was kept with ``partner``: set-up errors of two lines, or one line's."""
+    why = (
+        "a beam off the reflector's path and tilted, on one line; either alone takes the other's "
+        "share in its own shape"
+        if trial.finding.effect.line_index == partner.finding.effect.line_index
+        else "the 21 errors share two lines' set-up errors between both lines, so neither alone "
+        "predicts the held-out data better"
     )
-    return pair if pair[0].ok and pair[1].ok else None
-
-
-def _ranked_pairs(pairs: list[tuple[_Trial, _Trial]]) -> list[tuple[_Trial, _Trial]]:
-    """The pairs with their partners ranked over the readings every pair predicts (one refit
-    per pair)."""
-    partnered = _on_common_rows([p[1] for p in pairs])
-    return [(p[0], q) for p, q in zip(pairs, partnered, strict=True)]
-
-
-def _together_on_its_line(partner: _Trial) -> str:
-    return (
-        f"kept together with the {partner.finding.effect.label}: a beam off the reflector's "
-        "path and tilted, on one line; either alone takes the other's share in its own shape"
-    )
-
-
-def _together(partner: _Trial) -> str:
-    return (
-        f"kept together with the {partner.finding.effect.label}: the 21 errors share two "
-        "lines' set-up errors between both lines, so neither alone predicts the held-out data "
-        "better"
-    )
+    return f"kept together with the {partner.finding.effect.label}: {why}"
 
 
 def _prune(
