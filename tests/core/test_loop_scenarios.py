@@ -103,9 +103,7 @@ def test_a_reflector_twitch_on_a_twelve_line_plan_is_not_kept_as_a_finer_functio
     outcome = run_scenario(make_scenario(2000078))
     assert outcome.category == "outside" and outcome.plan == "twelve-line"
     assert outcome.kept == set(), outcome.kept
-    assert any("x_lin_3" in where for where in outcome.unexplained_where), (
-        outcome.unexplained_where
-    )
+    assert any("x_lin_3" in where for where in outcome.unexplained_where), outcome.unexplained_where
 
 
 def test_two_set_up_errors_that_hide_each_other_are_kept_together() -> None:
@@ -177,3 +175,18 @@ def test_a_set_up_error_fitted_within_its_uncertainty_of_nothing_is_not_kept(
     ]
     assert refusals, [s["verdict"] for s in report["loop"]]
     assert all("within its stated uncertainty of nothing" in s["reason"] for s in refusals)
+
+
+def test_a_surface_implausible_at_its_highest_order_is_refitted_at_lower_ones() -> None:
+    """Seed 4300180 (block 4300000, sparse plan, 0.08 µm noise): a cycle and a bump of Z and a
+    surface EX over X×Z. At order 8 the surface predicted the held-out blocks best (52.6 %
+    better) but swung to a 150 µm peak where the plan reads nothing, and was refused; EX over
+    Y×Z was kept in its place and X×Z never refitted at a lower order. Its lower orders are now
+    refitted in the same step: order 6 is kept, the other places named as rivals that fit as
+    well."""
+    outcome = run_scenario(make_scenario(4300180))
+    assert outcome.kept == outcome.expected, (outcome.kept, outcome.expected)
+    (surface,) = [e for e in outcome.effects_report if e["kind"] == "cross_axis"]
+    assert surface["label"].startswith("cross-axis EX over X×Z (order 6")
+    assert outcome.unexplained == 0
+    assert not outcome.implausible
