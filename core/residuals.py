@@ -1671,9 +1671,9 @@ class _Fitter:
 
         A refit of the loop is one linear solve from the model it starts from, and an Abbe
         offset acts through the angles of that model, identified while the offset was missing:
-        its lever arm then takes what those angles lack (blind 38111: (2.7, −2.7, 60.3) mm
+        its lever arm then takes what those angles lack (blind 38111: (3.5, −3.5, 61.7) mm
         fitted against the injected (0, 0, 56.4) mm, 12 of its standard uncertainties out).
-        Iterated, offset and angles agree ((1.0, −1.0, 56.9) ± (0.7, 0.7, 0.4) mm)."""
+        Iterated, offset and angles agree ((1.0, −1.0, 57.0) ± (0.7, 0.7, 0.4) mm)."""
         check(self.cancel)
         refit = identify(
             self.measurement,
