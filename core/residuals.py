@@ -440,6 +440,11 @@ class _Tester:
         self.dof = dof
         self.sigma2 = float(np.sum(self.w * self.r**2) / dof)
 
+    def drop(self, columns: FloatArray) -> float:
+        """The drop of the weighted residual sum of squares (σ²) that adding ``columns`` would
+        bring, what the model absorbs projected out (:meth:`test`'s F·k)."""
+        return self.test(columns)[0] * self.last_dimensions
+
     def test(self, columns: FloatArray) -> tuple[float, float, float, FloatArray]:
         """(F, log10 false-alarm probability, detectability, parameters) of candidate columns.
 
@@ -926,8 +931,7 @@ def _search_period(
         that absorption and so misplaces the peak a little, which over a stroke of many
         periods would slip the phase."""
         cycle = Cyclic(axis, 1.0 / frequency, (1,), ref)
-        f_statistic = tester.test(cycle.design(diagnosis.readings, diagnosis.model))[0]
-        return f_statistic * tester.last_dimensions
+        return tester.drop(cycle.design(diagnosis.readings, diagnosis.model))
 
     peaks = np.flatnonzero((scores >= np.roll(scores, 1)) & (scores >= np.roll(scores, -1)))
     if not peaks.size:
@@ -1653,7 +1657,7 @@ class _Fitter:
     ) -> None:
         self.measurement = measurement
         self.readings = readings
-        self.options = replace(options.identify, redundancy=False, max_iterations=1)
+        self.options = replace(options.identify, redundancy=False)
         self.iterations = options.identify.max_iterations
         self.redundant = redundant
         self.cancel = cancel
@@ -1674,23 +1678,17 @@ class _Fitter:
         its lever arm then takes what those angles lack (blind 38111: (3.5, −3.5, 61.7) mm
         fitted against the injected (0, 0, 56.4) mm, 12 of its standard uncertainties out).
         Iterated, offset and angles agree ((1.0, −1.0, 57.0) ± (0.7, 0.7, 0.4) mm)."""
-        check(self.cancel)
-        refit = identify(
-            self.measurement,
-            replace(self.options, max_iterations=self.iterations),
-            effects=effects,  # type: ignore[arg-type]
-            readings=self.readings,
-            cancel=self.cancel,
-            initial=initial,
-        )
+        refit = self.identify(effects, initial, self.iterations)
         return refit, cross_validate(refit.system, self.readings, self.redundant)
 
-    def identify(self, effects: Sequence[Effect], initial: ErrorModel) -> Identification:
-        """The refit alone, without cross-validation."""
+    def identify(
+        self, effects: Sequence[Effect], initial: ErrorModel, iterations: int = 1
+    ) -> Identification:
+        """The refit alone, without cross-validation: ``iterations`` linear solves at most."""
         check(self.cancel)
         return identify(
             self.measurement,
-            self.options,
+            replace(self.options, max_iterations=iterations),
             effects=effects,  # type: ignore[arg-type]
             readings=self.readings,
             cancel=self.cancel,
@@ -2353,10 +2351,8 @@ def _re_placed(
         for effect in effects:
             if effect is candidate or not effect.searched:
                 continue
-            rest = [e for e in effects if e is not effect]
-            better = _re_estimate(
-                effect, _Tester(fit.identify(rest, current.model)), machine, options.alpha
-            )
+            without = _without(effect, effects, fit, current.model, None)
+            better = _re_estimate(effect, without, machine, options.alpha)
             if better is None:
                 continue
             trial_effects = [better if e is effect else e for e in effects]
@@ -2662,13 +2658,11 @@ def _time_constant_doubts(
     for effect in kept:
         if not isinstance(effect, ThermalDrift) or not effect.searched:
             continue
-        rest = [e for e in kept if e is not effect]
-        tester = _Tester(fit.identify(rest, current.model) if rest else base)
+        tester = _without(effect, kept, fit, current.model, base)
 
         def gain(log_tau: float, effect: ThermalDrift = effect, tester: _Tester = tester) -> float:
             candidate = replace(effect, time_constant_s=float(np.exp(log_tau)))
-            columns = candidate.design(tester.ident.readings, tester.ident.model)
-            return tester.test(columns)[0] * tester.last_dimensions
+            return tester.drop(candidate.design(tester.ident.readings, tester.ident.model))
 
         start = float(np.log(effect.time_constant_s))
         # one σ² of the final fit, in the units of the model without the drift
@@ -3374,13 +3368,13 @@ def _refine(
     first (it is the same effect, placed better) and replaces it only when the cross-validated
     error says it is better."""
     for effect in list(kept):
-        if not isinstance(effect, Cyclic | ThermalDrift) or not (
-            effect.searched or isinstance(effect, Cyclic)
+        # a cycle at the screw lead too (:func:`_re_estimate`)
+        if not (
+            isinstance(effect, Cyclic) or (isinstance(effect, ThermalDrift) and effect.searched)
         ):
             continue
-        rest = [e for e in kept if e is not effect]
-        without = fit.identify(rest, current.model) if rest else base
-        better = _re_estimate(effect, _Tester(without), current.model.machine, alpha)
+        without = _without(effect, kept, fit, current.model, base)
+        better = _re_estimate(effect, without, current.model.machine, alpha)
         if better is None:
             continue
         trial_kept = [better if e is effect else e for e in kept]
@@ -3400,6 +3394,19 @@ def _refine(
         )
         kept, current, cv = trial_kept, refit, cv_new
     return current, cv, kept
+
+
+def _without(
+    effect: Effect,
+    effects: list[Effect],
+    fit: _Fitter,
+    initial: ErrorModel,
+    base: Identification | None,
+) -> _Tester:
+    """A tester of what the refit with ``effects`` less ``effect`` leaves (``base``, the fit of
+    the 21 errors alone, when nothing else is left), to place ``effect``'s searched quantity in."""
+    rest = [e for e in effects if e is not effect]
+    return _Tester(fit.identify(rest, initial) if rest or base is None else base)
 
 
 def _searched_value(effect: Effect) -> str:
@@ -3422,8 +3429,7 @@ def _re_estimate(effect: Effect, tester: _Tester, machine: Machine, alpha: float
     from scipy.optimize import minimize_scalar
 
     def gain(candidate: Effect) -> float:
-        f_statistic = tester.test(candidate.design(tester.ident.readings, tester.ident.model))[0]
-        return f_statistic * tester.last_dimensions
+        return tester.drop(candidate.design(tester.ident.readings, tester.ident.model))
 
     if isinstance(effect, Cyclic):
         low, high = machine.stroke(effect.axis)
@@ -3669,7 +3675,7 @@ def _read_long_beside(fit: Identification, effect: Cosine, alpha: float) -> str 
     freed = np.hstack([columns[i] for i in short]) if short else None
     base = 0.0
     if freed is not None:
-        base = tester.test(freed)[0] * tester.last_dimensions
+        base = tester.drop(freed)
     worst = None
     for index, z in z_scores.items():
         if z <= 0:
