@@ -305,7 +305,9 @@ class ThermalDrift(Effect):
     def searched(self) -> int:
         return 1 if self.mode == "time" or self.first_order else 0
 
-    def _driver(self, readings: Readings) -> FloatArray:
+    def driver(self, readings: Readings) -> FloatArray:
+        """Per reading, what the scale follows in time: the temperature's rise since the
+        session's first reading (°C), or 1 − exp(−t/τ)."""
         if self.mode == "temperature":
             temp = readings.material_temp_c
             if self.first_order:
@@ -318,7 +320,7 @@ class ThermalDrift(Effect):
         k = AXIS_INDEX[self.axis_name]
         span_m = (readings.position_mm[:, k] - self.reference_mm) * 1e-3
         # µm per ppm: 1 ppm over 1 m is 1 µm
-        return (_displacement(readings, k) * span_m * self._driver(readings))[:, None]
+        return (_displacement(readings, k) * span_m * self.driver(readings))[:, None]
 
     def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
         if self.mode == "temperature":
