@@ -1791,11 +1791,12 @@ def _judge(
     return _Trial(finding, refit, cv_new, True, reason, parameters, score=after, rows=rows)
 
 
-#: Legendre orders (in time, within one line) of the course a drift's exponential is tested
-#: against (:func:`_off_course`).
+#: Legendre orders (in time, within one line) of the course a line's residual is tested for
+#: (:func:`_course`; a drift's course, :func:`_off_course`; an axis' scale,
+#: :func:`_unsteady_scales`).
 COURSE_ORDERS = 3
-#: Time constants (s) of the settling course each line may follow on its own
-#: (:func:`_off_course`): 1 min to 50 h, and a straight line in time.
+#: Time constants (s) of the settling course a line may follow on its own beside it
+#: (:func:`_course` with ``settling``): 1 min to 50 h, and a straight line in time.
 COURSE_TAUS_S = (*np.geomspace(60.0, 180_000.0, 40), np.inf)
 
 
