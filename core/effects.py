@@ -305,9 +305,7 @@ class ThermalDrift(Effect):
     def searched(self) -> int:
         return 1 if self.mode == "time" or self.first_order else 0
 
-    def driver(self, readings: Readings) -> FloatArray:
-        """Per reading, what the scale follows in time: the temperature's rise since the
-        session's first reading (°C), or 1 − exp(−t/τ)."""
+    def _driver(self, readings: Readings) -> FloatArray:
         if self.mode == "temperature":
             temp = readings.material_temp_c
             if self.first_order:
@@ -316,11 +314,16 @@ class ThermalDrift(Effect):
             return np.nan_to_num(temp - temp[first])
         return 1.0 - np.exp(-readings.time_s / self.time_constant_s)
 
-    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
+    def along(self, readings: Readings) -> FloatArray:
+        """Per reading, the drift's shape in position: what 1 ppm of the axis' scale moves the
+        reading (µm), before its course in time."""
         k = AXIS_INDEX[self.axis_name]
         span_m = (readings.position_mm[:, k] - self.reference_mm) * 1e-3
         # µm per ppm: 1 ppm over 1 m is 1 µm
-        return (_displacement(readings, k) * span_m * self.driver(readings))[:, None]
+        return _displacement(readings, k) * span_m
+
+    def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
+        return (self.along(readings) * self._driver(readings))[:, None]
 
     def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
         if self.mode == "temperature":

@@ -1942,12 +1942,7 @@ def _off_course(fit: Identification, index: int, alpha: float) -> str | None:
     effect = fit.effects[index]
     assert isinstance(effect, ThermalDrift)
     readings = fit.readings
-    driver = effect.driver(readings)
-    shape = np.where(
-        driver > 0,
-        effect.design(readings, fit.model)[:, 0] / np.where(driver > 0, driver, 1.0),
-        0.0,
-    )
+    shape = effect.along(readings)
     lines = [i for i in range(len(readings.lines)) if np.any(shape[readings.line == i] != 0)]
     worst: tuple[float, Line, float] | None = None
     for line in lines:
