@@ -1752,11 +1752,14 @@ def _judge(
     )
     if lonely is not None:
         return refused(lonely, "one line only", uncorroborated=True)
-    unsteady = _gained_on_wandering_lines(
-        effect, _wandering(current, options.alpha), current, cv, cv_new, rows
-    )
-    if unsteady is not None:
-        return refused(unsteady, "not repeatable")
+    if effect.kind in NEEDS_TWO_LINES:
+        unsteady = _gained_on_wandering_lines(
+            _wandering(current, options.alpha),
+            _held_out_gain(tester, cv, cv_new, rows),
+            current.readings,
+        )
+        if unsteady is not None:
+            return refused(unsteady, "not repeatable")
     if improvement < options.margin:
         return refused(f"below the {100 * options.margin:.0f} % margin: refused", "below margin")
 
@@ -1797,8 +1800,8 @@ def _judge(
 
 
 #: Legendre orders (in time, within one line) of the course a line's residual is tested for
-#: (:func:`_course`; a drift's course, :func:`_off_course`; an axis' scale,
-#: :func:`_unsteady_scales`).
+#: (:func:`_course`; a drift's course, :func:`_off_course`; a line's scale,
+#: :func:`_scales_in_time`, :func:`_settling_lines`).
 COURSE_ORDERS = 3
 #: Time constants (s) of the settling course a line may follow on its own beside it
 #: (:func:`_course` with ``settling``): 1 min to 50 h, and a straight line in time.
@@ -1866,62 +1869,67 @@ def _moved(spec: LineSpec) -> list[str]:
     return [axis for axis in AXES if abs(spec.direction[AXIS_INDEX[axis]]) > 1e-6]
 
 
-def _unsteady_scales(fit: Identification, alpha: float) -> dict[str, tuple[float, Line, float]]:
-    """Axes whose scale changes in time beyond what ``fit`` holds: on a linear line that moves
-    the axis alone, what the fit leaves follows the distance along the line times a course in
-    the line's time (:func:`_course`, Bonferroni over those lines, at ``alpha``). Per axis: the
-    false-alarm level, the line and the course's RMS (µm) of its most significant line."""
+def _scales_in_time(fit: Identification, alpha: float) -> dict[int, tuple[str, float, float]]:
+    """Linear lines moving one axis alone whose scale changes in time beyond what ``fit``
+    holds: what the fit leaves follows the distance along the line times a course in the line's
+    time (:func:`_course`, Bonferroni over those lines, at ``alpha``). Per line index: the axis,
+    the false-alarm level and the course's RMS (µm)."""
     readings = fit.readings
     alone = [
         (index, _moved(line.spec)[0])
         for index, line in enumerate(readings.lines)
         if line.spec.quantity == "linear" and len(_moved(line.spec)) == 1
     ]
-    out: dict[str, tuple[float, Line, float]] = {}
+    out: dict[int, tuple[str, float, float]] = {}
     for index, axis in alone:
         found = _course(fit, index, readings.target_mm[readings.line == index], settling=False)
-        if found is None or found[0] * len(alone) >= alpha:
-            continue
-        if axis not in out or found[0] < out[axis][0]:
-            out[axis] = (found[0], readings.lines[index], found[1])
+        if found is not None and found[0] * len(alone) < alpha:
+            out[index] = (axis, *found)
     return out
 
 
-def _settling_lines(fit: Identification, alpha: float) -> list[int]:
-    """Linear lines moving one axis alone whose scale settles in time beyond what ``fit`` holds:
-    what it leaves follows the distance along the line times a course in the line's time
-    (:func:`_course`, Bonferroni over those lines, at ``alpha``) that a settling course
-    (1 − e^(−t/τ), or a straight line in time) takes: nothing further follows beside it at
-    ``alpha``. A drift that this line alone shows (the session's first line, read before the
-    structure settled) is missing there, and it spoils the size of every other effect on that
-    line alone (blind 42166: a surface EX over X×Y taken out by the audit for x_linear's
-    size alone, beside a drift of X that only x_linear shows). A scale that swings back within
-    the line follows more than a settling course and still counts against the effects that
-    took it."""
+def _unsteady_scales(
+    fit: Identification, moving: dict[int, tuple[str, float, float]]
+) -> dict[str, tuple[float, Line, float]]:
+    """Axes whose scale changes in time beyond what ``fit`` holds (``moving``, from
+    :func:`_scales_in_time`). Per axis: the false-alarm level, the line and the course's RMS
+    (µm) of its most significant line."""
+    out: dict[str, tuple[float, Line, float]] = {}
+    for index, (axis, p, swing) in moving.items():
+        if axis not in out or p < out[axis][0]:
+            out[axis] = (p, fit.readings.lines[index], swing)
+    return out
+
+
+def _settling_lines(
+    fit: Identification, moving: dict[int, tuple[str, float, float]], alpha: float
+) -> list[int]:
+    """The lines of ``moving`` (:func:`_scales_in_time`) whose scale settles in time: the course
+    they follow is one a settling course (1 − e^(−t/τ), or a straight line in time) takes,
+    nothing further following beside it at ``alpha``. A drift that such a line alone shows
+    (read before the structure settled) is missing there, and it spoils the size of every other
+    effect on that line alone (blind 42166: a surface EX over X×Y taken out by the audit for
+    x_linear's size alone, beside a drift of X that only x_linear shows). A scale that swings
+    back within the line follows more than a settling course and still counts against the
+    effects that took it."""
     readings = fit.readings
-    alone = [
-        index
-        for index, line in enumerate(readings.lines)
-        if line.spec.quantity == "linear" and len(_moved(line.spec)) == 1
-    ]
     out = []
-    for index in alone:
-        along = readings.target_mm[readings.line == index]
-        found = _course(fit, index, along, settling=False)
-        if found is None or found[0] * len(alone) >= alpha:
-            continue
-        beyond = _course(fit, index, along, settling=True)
+    for index in moving:
+        beyond = _course(fit, index, readings.target_mm[readings.line == index], settling=True)
         if beyond is None or beyond[0] >= alpha:
             out.append(index)
     return out
 
 
 def _scale_in_time(
-    current: Identification, effect: Effect, contribution: FloatArray, alpha: float
+    current: Identification,
+    effect: Effect,
+    contribution: FloatArray,
+    unsteady: dict[str, tuple[float, Line, float]],
 ) -> str | None:
     """Why a kept set-up effect of a linear line is taken out by the audit: with every kept
     effect in ``current``, an axis the line moves changes its scale in time beyond what the
-    model holds (:func:`_unsteady_scales`), and what the set-up adds along its line
+    model holds (``unsteady``, :func:`_unsteady_scales`), and what the set-up adds along its line
     (``contribution``) is mostly a scale of the line (:data:`SCALE_SHARE`).
 
     A line measured while the axis' scale stood off its mean reads that scale, locked to the
@@ -1937,7 +1945,6 @@ def _scale_in_time(
     line = readings.lines[effect.line_index]  # type: ignore[index]
     if line.spec.quantity != "linear":
         return None
-    unsteady = _unsteady_scales(current, alpha)
     axes = [axis for axis in _moved(line.spec) if axis in unsteady]
     if not axes:
         return None
@@ -2084,16 +2091,26 @@ def _uncorroborated(effect: Effect, energy: FloatArray, readings: Readings) -> s
     )
 
 
+def _held_out_gain(
+    tester: _Tester, cv: CrossValidation, cv_new: CrossValidation, rows: NDArray[np.bool_]
+) -> FloatArray:
+    """Per line: how much better (weighted, in the tested fit's σ²) its held-out readings among
+    ``rows`` are predicted by ``cv_new`` than by ``cv``."""
+    before = np.where(rows, cv.residual, 0.0)
+    after = np.where(rows, cv_new.residual, 0.0)
+    gain = tester.w * (before**2 - after**2) / tester.sigma2
+    readings = tester.ident.readings
+    return np.asarray(
+        np.bincount(readings.line, weights=gain, minlength=len(readings.lines)), dtype=float
+    )
+
+
 def _gained_on_wandering_lines(
-    effect: Effect,
-    wandering: dict[int, _Wander],
-    current: Identification,
-    cv: CrossValidation,
-    cv_new: CrossValidation,
-    rows: NDArray[np.bool_],
+    wandering: dict[int, _Wander], per_line: FloatArray, readings: Readings
 ) -> str | None:
     """Why a shape in position (a local defect, a finer function, a surface) whose held-out gain
-    comes mostly from lines that repeat far worse than their peers is not kept, or None.
+    (``per_line``, :func:`_held_out_gain`) comes mostly from lines that repeat far worse than
+    their peers is not kept, or None.
 
     Such a line (:func:`_wandering`) holds, in its per-target means, what changed between its
     runs: an error periodic in time that keeps step with the runs leaves a shape there that is
@@ -2102,24 +2119,14 @@ def _gained_on_wandering_lines(
     periodic in time, 107 s, on the direct plan; seven lines repeat 3–8 times worse than their
     peers and a surface EX over X×Z of order 8 was kept, 9.6 % better held out, 92 % of it on
     those seven). When :data:`WANDERING_SHARE` or more of what the held-out readings gain with
-    the shape (weighted, over the readings both models predict) is on such lines, it is refused
-    as not repeatable. A drift in time is not asked: a drift still missing is what makes its
-    own lines wander. Refused for what the rest may spoil, it is refitted once another effect is
-    kept."""
-    if effect.kind not in NEEDS_TWO_LINES or not wandering:
-        return None
-    readings = current.readings
-    ok = rows & np.isfinite(cv.residual) & np.isfinite(cv_new.residual)
-    gain = np.bincount(
-        readings.line[ok],
-        weights=(current.system.weights * (cv.residual**2 - cv_new.residual**2))[ok],
-        minlength=len(readings.lines),
-    )
-    total = float(gain.sum())
-    if total <= 0.0:
+    the shape is on such lines, it is refused as not repeatable. A drift in time is not asked:
+    a drift still missing is what makes its own lines wander. Refused for what the rest may
+    spoil, it is refitted once another effect is kept."""
+    total = float(per_line.sum())
+    if not wandering or total <= 0.0:
         return None
     unsteady = sorted(wandering)
-    share = float(gain[unsteady].sum()) / total
+    share = float(per_line[unsteady].sum()) / total
     if share < WANDERING_SHARE:
         return None
     names = ", ".join(readings.lines[i].name for i in unsteady)
@@ -2148,10 +2155,7 @@ def _confirmed_by_one_line(
     if effect.kind != "higher_order":
         return None
     readings = tester.ident.readings
-    before = np.where(rows, cv.residual, 0.0)
-    after = np.where(rows, cv_new.residual, 0.0)
-    gain = tester.w * (before**2 - after**2) / tester.sigma2
-    per_line = np.bincount(readings.line, weights=gain, minlength=len(readings.lines))
+    per_line = _held_out_gain(tester, cv, cv_new, rows)
     best = int(np.argmax(per_line))
     others = float(per_line.sum() - per_line[best])
     if others >= SHOWN_SIGMA2:
@@ -2200,8 +2204,12 @@ class _Sizes:
     absorbed by the 21 errors but for a trace) is larger than the effect.
     """
 
-    def __init__(self, fit: Identification, index: int, contribution: FloatArray) -> None:
+    def __init__(
+        self, fit: Identification, index: int, contribution: FloatArray, free: Sequence[int] = ()
+    ) -> None:
         self.contribution = contribution
+        #: lines allowed a size of their own by :meth:`by_line`
+        self.free = list(free)
         self.seen = max(_wald(fit, index), 1e-300)
         self.tester = _Tester(fit)
         self.energy = self.tester.w / self.tester.sigma2 * self.contribution**2
@@ -2217,8 +2225,6 @@ class _Sizes:
             "block": -(line + 1) * 10_000 - block,
         }
         self._drops: dict[str, tuple[float, int]] = {}
-        #: lines allowed a size of their own by :meth:`by_line`
-        self.free: list[int] = []
 
     def _pooled(self, name: str, coarser: IntArray) -> IntArray:
         """The groups ``name``, where the contribution shows less than 4 σ the ``coarser`` one."""
@@ -2259,13 +2265,10 @@ class _Sizes:
             log_p = float(np.log10(max(special.chdtrc(dof, gain), 1e-300)))
         return _Change(log_p, float(np.sqrt(max(gain - dof, 0.0) / self.seen)))
 
-    def by_line(self, free: Sequence[int] = ()) -> _Change:
-        """Between the lines that show it, the lines ``free`` each allowed a size of its own."""
-        if not free:
-            return self._change("line")
-        self.free = sorted(free)
-        self._drops.pop("free", None)
-        return self._change("line", within="free")
+    def by_line(self) -> _Change:
+        """Between the lines that show it, the lines :attr:`free` each allowed a size of its
+        own."""
+        return self._change("line", within="free" if self.free else None)
 
     def by_run(self) -> _Change:
         """Between the runs of each line in one approach direction: another effect the model
@@ -3854,7 +3857,11 @@ def _audit(
     fitted values fit some lines at twice the size and others at none."""
     while kept:
         failures = []
-        settling = _settling_lines(current, options.alpha)
+        # the lines whose scale changes in time, once per round: a set-up that is a scale of a
+        # line moving such an axis is taken out; a line whose scale settles may take its own size
+        moving = _scales_in_time(current, options.alpha)
+        unsteady = _unsteady_scales(current, moving)
+        settling = _settling_lines(current, moving, options.alpha)
         for index, effect in enumerate(current.effects):
             assert isinstance(effect, Effect)
             values = current.effect_parameters[index]
@@ -3870,14 +3877,14 @@ def _audit(
                     why = _read_long_beside(current, effect, options.alpha)
                 if why is None:
                     contribution = effect.design(current.readings, current.model) @ values
-                    why = _scale_in_time(current, effect, contribution, options.alpha)
+                    why = _scale_in_time(current, effect, contribution, unsteady)
                 if why is not None:
                     failures.append((1, np.inf, effect, why))
                 continue
             if effect.kind not in ONE_SHAPE:
                 continue
             contribution = effect.design(current.readings, current.model) @ values
-            change = _Sizes(current, index, contribution).by_line(settling)
+            change = _Sizes(current, index, contribution, settling).by_line()
             why = _unequal(change, options)
             if why is not None:
                 failures.append((0, change.spread, effect, why))
