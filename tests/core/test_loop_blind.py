@@ -231,6 +231,62 @@ def test_a_surface_is_judged_without_the_line_a_missing_drift_spoils() -> None:
     assert any(u["where"].startswith("line x_linear ") for u in report["unexplained"])
 
 
+def _kept_places(report: dict) -> list[tuple[str, str]]:  # type: ignore[type-arg]
+    """The kept effects by kind and place: a set-up error's line, any other's axis."""
+    return sorted(
+        (
+            e["kind"],
+            e["parameters"]["line"] if e["kind"] in ("cosine", "abbe_offset") else e["axis"],
+        )
+        for e in report["effects"]
+    )
+
+
+def test_a_surface_gives_way_to_the_set_up_error_that_explains_it_as_well() -> None:
+    # displacement-only plan, 0.07 µm noise: a 4.1 mrad misalignment of z_lin_1 beside a surface
+    # EX over X×Y. Step 1 kept a surface EZ over X×Z (0.1164 µm held out against 0.1256 µm for
+    # the cosine error): it took part of the EX surface still missing. With EX over X×Y kept at
+    # step 2 both predict alike (0.07514 against 0.07509 µm) and the surface stayed, its six
+    # terms for the cosine's one. The backward pass puts the cosine error in its place
+    report, truth = _loop(43187)
+    assert truth["category"] == "effects"
+    assert _kept_places(report) == [("cosine", "z_lin_1"), ("cross_axis", "X")]
+    (replaced,) = [
+        s
+        for s in report["loop"]
+        if s["stage"] == "backward" and s["effect"]["kind"] == "cross_axis" and not s["kept"]
+    ]
+    assert "cosine misalignment of line z_lin_1 explains what it did as well" in replaced["reason"]
+    (cosine,) = [e for e in truth["effects"] if e["kind"] == "cosine"]
+    (fitted,) = [e for e in report["effects"] if e["kind"] == "cosine"]
+    # the line's scale, −θ²/2: within 0.5 ppm of the injected −8.34 ppm (fitted −8.60)
+    assert fitted["parameters"]["scale_ppm"] == pytest.approx(
+        cosine["parameters"]["scale_ppm"], abs=0.5
+    )
+
+
+def test_the_backward_pass_asks_again_once_a_surface_gave_way() -> None:
+    # displacement-only plan, 0.41 µm noise: misalignments of body_ppp and diag_yz_pm and a
+    # drift of X. A surface EY over X×Z stood in for body_ppp's cosine error, and a cosine error
+    # of body_mpp was kept beside it; the audit took them out and nothing was kept, 11 lines
+    # reported. The surface gives way to body_ppp's cosine error, and the backward pass, asked
+    # again, takes out body_mpp's, which that one now explains
+    report, truth = _loop(41008)
+    assert truth["category"] == "effects"
+    assert _kept_places(report) == [
+        ("cosine", "body_ppp"),
+        ("cosine", "diag_yz_pm"),
+        ("thermal_drift", "X"),
+    ]
+    backward = [
+        (s["effect"]["label"], s["kept"]) for s in report["loop"] if s["stage"] == "backward"
+    ]
+    assert backward[-2:] == [
+        ("cosine misalignment of line body_ppp", True),
+        ("cosine misalignment of line body_mpp", False),
+    ]
+
+
 @pytest.mark.parametrize("seed", [21142, 26046, 26062])
 def test_a_scale_oscillating_in_time_is_not_kept_as_cosine_errors_of_the_lines_that_read_short(
     seed: int,
