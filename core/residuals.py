@@ -3887,7 +3887,7 @@ def _set_up_for_surface(
                 stage="backward",
             )
         )
-        kept = [*rest, set_up.effect]
+        kept = _with(rest, set_up.effect, current.model.machine)
         current, cv = trial.refit, trial.cv
     return current, cv, kept
 
