@@ -3550,9 +3550,13 @@ def _kept_instead(chosen: _Trial, trial: _Trial, margin: float) -> str:
 
 
 def _complexity(trial: _Trial) -> int:
-    effect = trial.finding.effect
-    index = list(trial.refit.effects).index(effect)
-    return int(trial.refit.effect_parameters[index].size) + effect.searched
+    return _terms(trial.finding.effect, trial.refit)
+
+
+def _terms(effect: Effect, fit: Identification) -> int:
+    """How many parameters ``effect`` has in ``fit``: fitted, and searched (a period, a τ)."""
+    index = list(fit.effects).index(effect)
+    return int(fit.effect_parameters[index].size) + effect.searched
 
 
 def _other_kinds(proposals: list[Finding], tried: list[_Trial], count: int) -> list[Finding]:
@@ -3855,9 +3859,8 @@ def _set_up_for_surface(
         if not trial.ok:
             continue
         with_surface, with_set_up, _ = _compared(cv, trial.cv, current, other_fit=trial.refit)
-        index = list(current.effects).index(surface)
-        terms = int(current.effect_parameters[index].size) + surface.searched
-        if with_set_up > with_surface * (1.0 + options.tie) or _complexity(trial) >= terms:
+        fewer = _complexity(trial) < _terms(surface, current)
+        if with_set_up > with_surface * (1.0 + options.tie) or not fewer:
             continue
         reason = (
             f"{set_up.effect.label} explains what it did as well with fewer parameters: "
