@@ -41,6 +41,7 @@ Residuals along a line are autocorrelated, so the F-test only proposes; cross-va
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import NamedTuple
@@ -66,6 +67,7 @@ from .identify import (
     BLOCK_MM,
     CrossValidation,
     Identification,
+    IdentificationError,
     IdentifyOptions,
     cross_validate,
     identify,
@@ -1232,9 +1234,7 @@ def _unexplained_by_line(
     count = len(readings.lines)
     for index, line in enumerate(readings.lines):
         test = _line_test(readings, identification.residual, index)
-        # each test held to ``alpha``, Bonferroni over the lines and the two tests (position,
-        # time): the three tests' family-wise false-alarm level is at most 1.5 ``alpha``
-        if min(test.p_position, test.p_time) * count * 2 >= alpha:
+        if not _systematic(test, count, alpha):
             continue
         mask = readings.line == index
         n, valid = test.cells
@@ -1642,6 +1642,9 @@ class _Trial:
     verdict: str = "kept"
     #: the readings its comparison with the current model ran on
     rows: NDArray[np.bool_] | None = None
+    #: for a surface refused as the disagreement of lines it leaves systematic
+    #: (:func:`_gained_through_lines_it_leaves`): those lines
+    left: frozenset[str] = frozenset()
 
 
 class _Fitter:
@@ -1661,6 +1664,10 @@ class _Fitter:
         self.iterations = options.identify.max_iterations
         self.redundant = redundant
         self.cancel = cancel
+        self.loop_options = options
+        self._reduced: dict[frozenset[str], _Fitter | None] = {}
+        self._last: tuple[tuple[Effect, ...], tuple[Identification, CrossValidation]] | None = None
+        self._moved: dict[Effect, Effect] = {}
 
     def __call__(
         self, effects: Sequence[Effect], initial: ErrorModel
@@ -1695,6 +1702,60 @@ class _Fitter:
             initial=initial,
         )
 
+    def once(
+        self, effects: Sequence[Effect], initial: ErrorModel
+    ) -> tuple[Identification, CrossValidation]:
+        """:meth:`__call__`, the last one kept for the same effect objects: the current model
+        of a step is refitted once whatever number of candidates asks for it."""
+        key = tuple(effects)
+        if self._last is None or self._last[0] != key:
+            self._last = (key, self(effects, initial))
+        return self._last[1]
+
+    def without(self, names: frozenset[str]) -> _Fitter | None:
+        """A fitter of the same session without the lines ``names`` (time still counted from
+        the whole session's first reading); None where what is left cannot be cross-validated
+        or identified."""
+        if names not in self._reduced:
+            self._reduced[names] = self._without(names)
+        return self._reduced[names]
+
+    def _without(self, names: frozenset[str]) -> _Fitter | None:
+        whole = self.measurement
+        left = Measurement(
+            whole.machine,
+            tuple(line for line in whole.lines if line.name not in names),
+            whole.uncertainty,
+        )
+        readings = flatten(left)
+        shift = left.session_start - whole.session_start
+        readings = replace(
+            readings,
+            time_s=readings.time_s + shift,
+            material_ends_s=readings.material_ends_s + shift,
+        )
+        try:
+            base = identify(left, self.loop_options.identify, readings=readings, cancel=self.cancel)
+        except IdentificationError:
+            return None
+        redundant = base.identifiability.redundant_lines
+        if _can_cross_validate(readings, cross_validate(base.system, readings, redundant)):
+            return None
+        return _Fitter(left, readings, self.loop_options, redundant, self.cancel)
+
+    def moved(self, effects: Sequence[Effect]) -> list[Effect]:
+        """``effects`` of the whole session for this fitter's lines: a set-up effect follows its
+        line to its index here and is left out with it."""
+        index = {line.name: i for i, line in enumerate(self.measurement.lines)}
+        out: list[Effect] = []
+        for effect in effects:
+            name = getattr(effect, "line_name", None)
+            if effect.line_index is None:
+                out.append(effect)
+            elif name in index:  # the same object each time: :meth:`once` knows it again
+                out.append(self._moved.setdefault(effect, replace(effect, line=index[name])))  # type: ignore[call-arg]
+        return out
+
 
 def _judge(
     finding: Finding,
@@ -1703,9 +1764,12 @@ def _judge(
     refit: Identification,
     cv_new: CrossValidation,
     options: LoopOptions,
+    fit: _Fitter | None = None,
 ) -> _Trial:
     """Keep or refuse a refitted candidate: plausibility, corroboration, the margin on the
-    held-out error of the lines it acts on, generalisation and consistency."""
+    held-out error of the lines it acts on, generalisation and consistency. With ``fit`` (the
+    session's refits), a surface is also judged without the lines it leaves systematic
+    (:func:`_gained_through_lines_it_leaves`)."""
     effect = finding.effect
     index = list(refit.effects).index(effect)
     values, covariance = refit.effect_parameters[index], refit.effect_covariances[index]
@@ -1723,7 +1787,9 @@ def _judge(
         held = "blocks" if cv.method.startswith("held-out blocks") else "lines"
         reason += f" (over the held-out {held} less {wild} wild extrapolations)"
 
-    def refused(why: str, verdict: str, uncorroborated: bool = False) -> _Trial:
+    def refused(
+        why: str, verdict: str, uncorroborated: bool = False, left: frozenset[str] = frozenset()
+    ) -> _Trial:
         return _Trial(
             finding,
             refit,
@@ -1735,6 +1801,7 @@ def _judge(
             after,
             verdict,
             rows,
+            left,
         )
 
     why = effect.implausible(values, covariance, options.plausibility)
@@ -1796,7 +1863,93 @@ def _judge(
         uneven = _uneven(sizes.along_line(), options)
         if uneven is not None:
             return refused(uneven, "uneven along its line")
+    if effect.kind == "cross_axis" and fit is not None:
+        per_line = _held_out_gain(tester, cv, cv_new, rows)
+        carried = _gained_through_lines_it_leaves(effect, current, refit, per_line, fit)
+        if carried is not None:
+            return refused(carried[0], "not confirmed", left=carried[1])
     return _Trial(finding, refit, cv_new, True, reason, parameters, score=after, rows=rows)
+
+
+def _systematic(test: _LineTest, lines: int, alpha: float) -> bool:
+    """Whether a line's tests (:func:`_line_test`) find it beyond its repeatability, as
+    :func:`unexplained` reports a line: each test held to ``alpha``, Bonferroni over the
+    ``lines`` and the two tests (position, time), so that the three tests' family-wise
+    false-alarm level is at most 1.5 ``alpha``."""
+    return min(test.p_position, test.p_time) * lines * 2 < alpha
+
+
+def _gained_through_lines_it_leaves(
+    effect: Effect,
+    current: Identification,
+    refit: Identification,
+    per_line: FloatArray,
+    fit: _Fitter,
+) -> tuple[str, frozenset[str]] | None:
+    """Why a surface is not kept when what it gains held out is the disagreement of lines it
+    leaves unexplained, and those lines; or None.
+
+    A surface has many terms. Where a line disagrees with the rest by something of its own (a
+    reflector mount that twitches), the 21 errors are pulled between that line and the others,
+    and a surface relieves the pull: it takes over part of the other lines' readings, frees the
+    errors to follow the disagreeing line, and predicts held-out readings better on every line
+    the pull reached, that line's too — without explaining it: the line still disagrees with the
+    model beyond its repeatability (:func:`_systematic`) with the surface in (indep. 4500087,
+    sparse plan: 3.9 µm twitches of z_straight_y and y_straight_z, outside the catalogue; a
+    surface EY over X×Y of order 8 was 11.7 % better held out, half of it on those two lines,
+    which it does not even reach, the rest on the lines whose errors they had moved; without
+    the two lines it is 0.2 % worse). So the surface is refitted without every line that gains
+    with it (by :data:`SHOWN_SIGMA2`, held out) and stays systematic beside it; there, against
+    the kept effects alone, it must still better the held-out error by the margin. A surface of
+    the machine keeps its gain on the lines it explains; a line that another effect still
+    missing leaves systematic is left out of this one test only. It asks this where a few
+    lines disagree: where :data:`WIDESPREAD_SHARE` of the lines or more are systematic in the
+    model the surface would join (the same for every candidate of the step), what they disagree
+    by is structure the model still lacks, not something of a few lines' own, and the lines a
+    surface is read on may be among them (blind 43183, demo plan: a surface EZ over Y×Z of
+    order 4 beside a bump of EZZ still missing left the four Z lines systematic, and without
+    them it was refused; its order 3, leaving more lines systematic, was kept, and later a
+    second, false surface beside it)."""
+    readings = refit.readings
+    options = fit.loop_options
+    count = len(readings.lines)
+
+    def systematic(fitted: Identification) -> list[int]:
+        return [
+            index
+            for index in range(count)
+            if _systematic(_line_test(readings, fitted.residual, index), count, options.alpha)
+        ]
+
+    if len(systematic(current)) >= WIDESPREAD_SHARE * count:
+        return None  # structure still missing, not a few lines of their own
+    left = frozenset(
+        readings.lines[index].name for index in systematic(refit) if per_line[index] >= SHOWN_SIGMA2
+    )
+    if not left:
+        return None
+    reduced = fit.without(left)
+    if reduced is None:
+        return None
+    kept = reduced.moved([e for e in current.effects if isinstance(e, Effect)])
+    rest, cv_rest = reduced.once(kept, current.model)
+    with_it, cv_with = reduced(_with(kept, effect, current.model.machine), current.model)
+    rows, _ = _rows_compared(cv_rest, cv_with, rest, with_it)
+    before = _rms(cv_rest.residual, rest.readings, rows)
+    after = _rms(cv_with.residual, rest.readings, rows)
+    improvement = 1.0 - after / before if before > 0 else 0.0
+    if improvement >= options.margin:
+        return None
+    share = float(per_line[[readings.line_names.index(name) for name in left]].sum())
+    share /= max(float(np.clip(per_line, 0.0, None).sum()), 1e-300)
+    return (
+        f"{100 * share:.0f} % of what the held-out readings gain with it is on lines it leaves "
+        f"systematic ({_and(sorted(left))}); without those lines it predicts the held-out "
+        f"readings {100 * improvement:.1f} % better (at least {100 * options.margin:.0f} % "
+        "needed): what it gains is their disagreement with the rest, carried through the 21 "
+        "errors, not a surface of the machine; refused",
+        left,
+    )
 
 
 #: Legendre orders (in time, within one line) of the course a line's residual is tested for
@@ -2483,7 +2636,7 @@ def _forward(
                 if not trial.ok:
                     refused[key] = trial.finding.f_statistic
                     state.refused_beside.pop(key, None)
-                if trial.verdict in SPOILED_BY_THE_REST or _set_up_too_large(trial):
+                if trial.verdict in SPOILED_BY_THE_REST or trial.left or _set_up_too_large(trial):
                     state.refused_beside[key] = beside
                 reason, verdict = trial.reason, trial.verdict
                 if trial.ok and trial is not chosen and chosen is not None:
@@ -2492,7 +2645,28 @@ def _forward(
                 steps.append(
                     _step(number, trial, trial is chosen, reason, current, cv, verdict=verdict)
                 )
-        if chosen is None:
+        groups = _handed_on(tried_this_step, fit, current, cv, kept, options)
+        group = _handed_on_kept(groups, chosen, tried_this_step, options.tie)
+        if group is not None:
+            if chosen is not None:  # the rows that passed name the group kept instead
+                first = len(steps) - len(trials)
+                for at, trial in enumerate(trials, first):
+                    if trial.ok:
+                        reason = f"{trial.reason}{_group_instead(group, trial)}"
+                        steps[at] = _step(
+                            number, trial, False, reason, current, cv, verdict="another kept"
+                        )
+            lines = frozenset(t.finding.effect.line_name for t in group)  # type: ignore[attr-defined]
+            surface = min((t for t in tried_this_step if t.left == lines), key=lambda t: t.score)
+            for index, trial in enumerate(group):
+                reason = f"{trial.reason}; {_handed_on_text(trial, group, surface)}"
+                verdict = TOGETHER if len(group) > 1 else "kept"
+                steps.append(_step(number, trial, True, reason, current, cv, verdict=verdict))
+                key = trial.finding.effect.key
+                rivals = [g[index] for g in groups if g[index].finding.effect.key != key]
+                _doubts(state, trial, _on_common_rows([trial, *rivals]), options)
+            chosen = group[0]
+        elif chosen is None:
             pairs = _set_up_pairs(tried_this_step, fit, current, cv, kept, options)
             if pairs:
                 pair = min(pairs, key=lambda p: p[1].score)
@@ -2541,7 +2715,7 @@ def _tried(
 ) -> _Trial:
     """``finding``'s effect refitted beside the kept ones and judged against the current model."""
     effects = _with(kept, finding.effect, current.model.machine)
-    return _judge(finding, current, cv, *fit(effects, current.model), options)
+    return _judge(finding, current, cv, *fit(effects, current.model), options, fit)
 
 
 def _leaner_surfaces(trials: list[_Trial], proposals: list[Finding], count: int) -> list[Finding]:
@@ -2631,7 +2805,9 @@ def _re_placed(
             if better is None:
                 continue
             trial_effects = [better if e is effect else e for e in effects]
-            judged = _judge(trial.finding, current, cv, *fit(trial_effects, current.model), options)
+            judged = _judge(
+                trial.finding, current, cv, *fit(trial_effects, current.model), options, fit
+            )
             if judged.ok:
                 passing.append((judged, effect, better))
     if not passing:
@@ -2791,6 +2967,119 @@ def _one_line_set_up(
         for alone in by_line.values()
         if AbbeOffset in alone and Cosine in alone
     ]
+
+
+#: At most this many lines a refused surface leaves systematic have their set-up errors
+#: tried together (:func:`_handed_on`): each linear line's Abbe offset or cosine error, so
+#: up to 2³ refits.
+HANDED_ON_LINES = 3
+
+
+def _handed_on(
+    tried: list[_Trial],
+    fit: _Fitter,
+    current: Identification,
+    cv: CrossValidation,
+    kept: list[Effect],
+    options: LoopOptions,
+) -> list[list[_Trial]]:
+    """Set-up errors of the lines a surface of the step was refused for leaving systematic
+    (:func:`_gained_through_lines_it_leaves`), refitted together beside the kept effects:
+    one group per choice of an Abbe offset or a cosine error on each line, each member judged
+    against the current model; the groups of which every member passes every rule.
+
+    Lines set up off their reflectors' paths disagree with the rest, and a surface relieves
+    the pull they put on the 21 errors: it predicts the held-out readings better without
+    explaining them. Refused, it hands on what the diagnosis finds beside it — the lines'
+    own set-up errors, which in the model without it the 21 errors share between the lines
+    and hide (blind 27006, demo plan: Abbe offsets of 41 mm on y_linear and y_linear_side; a
+    surface EY over X×Y of order 5 was 4.2 % better held out and 0.8 % worse without the two
+    lines; beside it both offsets show). A line is tried only where a set-up error of it
+    shows beside the surface, and with both kinds: one kind's finding can be the stronger and
+    still not the line's (27006: the cosine error of y_linear_side, implausible at 1.59 ppm
+    read long). Only whole groups: one line's set-up kept alone leaves the others' pull in
+    the errors, and on a line that twitches on its own an offset takes what it can."""
+    names = current.readings.line_names
+    known = {e.key for e in kept}
+    machine = current.model.machine
+    alpha = np.log10(options.alpha)
+    seen: set[frozenset[str]] = set()
+    groups: list[list[_Trial]] = []
+    for trial in sorted((t for t in tried if t.left), key=lambda t: t.score):
+        if trial.left in seen or len(trial.left) > HANDED_ON_LINES:
+            continue
+        seen.add(trial.left)
+        beside = [e.key for e in trial.refit.effects if isinstance(e, Effect)]
+        findings, _ = diagnose(trial.refit, beside, options)
+        per_line: dict[int, list[Finding]] = {names.index(name): [] for name in trial.left}
+        for finding in findings:
+            effect = finding.effect
+            if (
+                isinstance(effect, (AbbeOffset, Cosine))
+                and effect.line_index in per_line
+                and effect.key not in known
+            ):
+                per_line[effect.line_index].append(finding)
+        shown = all(any(f.log10_false_alarm < alpha for f in line) for line in per_line.values())
+        if not shown:
+            continue
+        for choice in itertools.product(*per_line.values()):
+            effects = list(kept)
+            for finding in choice:
+                effects = _with(effects, finding.effect, machine)
+            refit, cv_new = fit(effects, current.model)
+            group = [_judge(f, current, cv, refit, cv_new, options) for f in choice]
+            if all(t.ok for t in group):
+                groups.append(group)
+    return groups
+
+
+def _handed_on_kept(
+    groups: list[list[_Trial]], chosen: _Trial | None, tried: list[_Trial], tie: float
+) -> list[_Trial] | None:
+    """The group of :func:`_handed_on` to keep, or None: the best-predicting one, where no
+    candidate of the step passed, or where it predicts better than the one that did, or as
+    well (within ``tie``) with fewer parameters — the rule :func:`_simplest_best` holds
+    single candidates to. Scores are taken over the readings all of them predict."""
+    if not groups:
+        return None
+    ranked = _on_common_rows(tried + [group[0] for group in groups])
+    leads = ranked[len(tried) :]
+    best = min(range(len(groups)), key=lambda i: leads[i].score)
+    if chosen is None:
+        return groups[best]
+    score, theirs = leads[best].score, ranked[tried.index(chosen)].score
+    terms = sum(_complexity(t) for t in groups[best])
+    if score < theirs or (score <= theirs * (1.0 + tie) and terms < _complexity(chosen)):
+        return groups[best]
+    return None
+
+
+def _handed_on_text(trial: _Trial, group: list[_Trial], surface: _Trial) -> str:
+    """Why ``trial`` was kept with the rest of its group (:func:`_handed_on`)."""
+    others = [t.finding.effect.label for t in group if t is not trial]
+    together = f"kept together with the {_and(others)}: " if others else ""
+    lines = _and(sorted(surface.left))
+    shown = (
+        "their set-up errors show: the 21 errors share them between the lines while they are "
+        "missing"
+        if others
+        else "the line's set-up error shows: the 21 errors share it with the other lines while "
+        "it is missing"
+    )
+    return (
+        f"{together}the {surface.finding.effect.label} was refused for the disagreement of "
+        f"{lines} with the rest, and beside it {shown}"
+    )
+
+
+def _group_instead(group: list[_Trial], trial: _Trial) -> str:
+    """The clause of a passing candidate's reason that names the group kept instead."""
+    kept = _and([t.finding.effect.label for t in group])
+    return (
+        f"; the {kept} were kept instead, together (cross-validated RMS {group[0].score:.4g} "
+        f"against {trial.score:.4g})"
+    )
 
 
 def _together(trial: _Trial, partner: _Trial) -> str:
@@ -3597,8 +3886,11 @@ def _set_up_tied(proposals: list[Finding], batch: list[Finding], strongest: floa
 
 def _owed(state: _State, finding: Finding, beside: frozenset[EffectKey]) -> bool:
     """Whether ``finding`` is owed a refit: refused for what an effect then missing spoils (a
-    size that varied, :data:`SPOILED_BY_THE_REST`, or a set-up error too large without its
-    neighbour, :func:`_set_up_too_large`), and another effect kept since. It joins the next
+    size that varied, :data:`SPOILED_BY_THE_REST`, a set-up error too large without its
+    neighbour, :func:`_set_up_too_large`, or a surface's gain on lines it left systematic,
+    :func:`_gained_through_lines_it_leaves`: blind 45093, a surface EX over X×Z refused while a
+    local defect of Z, still missing, left five lines systematic), and another effect kept
+    since. It joins the next
     step's first batch whatever the diagnosis now says of it: the diagnosis holds the kept
     effects' nonlinear parameters where they were fitted without it (a drift's τ, fitted while
     the first line's cosine error was missing, took part of that error; refitted together, τ
