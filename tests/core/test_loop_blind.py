@@ -1037,6 +1037,30 @@ def test_what_a_freer_fold_fitted_is_not_held_out_evidence() -> None:
     assert outcome.unexplained == 0
 
 
+def test_a_scale_that_swings_on_every_line_of_its_axis_takes_out_the_set_ups_it_hid_in() -> None:
+    # blind 45141 (demo plan, 0.46 µm noise): the Y scale swings over 98 min, 2.2 µm at the end
+    # of the stroke (2.9 times the noise), outside the catalogue. Each of the four lines moving
+    # Y alone follows its distance times a course in time at 10⁻³ to 10⁻⁴, none past the
+    # Bonferroni level over the twelve such lines, and two Abbe offsets (diag_yz_pp_b,
+    # diag_xy_pp_b, each 96 % a scale of its diagonal) were kept with eight lines reported.
+    # Together the Y lines say the scale changes (Fisher's combination), and the audit takes
+    # the offsets out: nothing is kept and the lines are reported
+    report, truth = _loop(45141)
+    assert truth["category"] == "outside"
+    assert report["effects"] == []
+    assert len(report["unexplained"]) >= 8
+    audits = [
+        s for s in report["loop"] if s["stage"] == "audit" and s["effect"]["kind"] == "abbe_offset"
+    ]
+    assert {s["effect"]["label"] for s in audits} == {
+        "Abbe offset of line diag_yz_pp_b",
+        "Abbe offset of line diag_xy_pp_b",
+    }
+    for step in audits:
+        assert "the Y scale changes in time" in step["reason"]
+        assert "lines moving Y alone, together (Fisher)" in step["reason"]
+
+
 def test_a_sliver_of_structure_that_spreads_over_the_plan_is_not_kept() -> None:
     # blind 36049 (the generator's own plan, 49 lines): a 3 µm Z error periodic in time (102 s),
     # outside every catalogue. A surface EZ over Y×Z took 3.7 % of the held-out error, above the
