@@ -3102,11 +3102,13 @@ def _handed_on_text(trial: _Trial, group: list[_Trial], surface: _Trial) -> str:
 
 
 def _group_instead(group: list[_Trial], trial: _Trial) -> str:
-    """The clause of a passing candidate's reason that names the group kept instead."""
+    """The clause of a passing candidate's reason that names the group kept instead, both
+    errors over the readings both predict."""
     kept = _and([t.finding.effect.label for t in group])
+    ours, theirs = _on_common_rows([group[0], trial])
     return (
-        f"; the {kept} were kept instead, together (cross-validated RMS {group[0].score:.4g} "
-        f"against {trial.score:.4g})"
+        f"; the {kept} were kept instead, together (cross-validated RMS {ours.score:.4g} "
+        f"against {theirs.score:.4g} over the readings both predict)"
     )
 
 
