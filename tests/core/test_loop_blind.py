@@ -1061,6 +1061,26 @@ def test_a_scale_that_swings_on_every_line_of_its_axis_takes_out_the_set_ups_it_
         assert "lines moving Y alone, together (Fisher)" in step["reason"]
 
 
+def test_a_surface_that_is_only_the_scales_of_lines_measured_at_other_times_is_taken_out() -> None:
+    # blind 45003 (demo plan, 0.097 µm noise): the Z scale swings over 80 min, 2.5 µm at the end
+    # of the stroke, outside the catalogue. A surface EZ over X×Z (order 3) was kept at 11 %
+    # better held out: the Z lines, measured hours apart, read the scale of their time, and the
+    # surface gave each the scale of where it lies. Each Z line follows a course in time
+    # (10⁻⁸ to 10⁻³⁸); beside a scale of its own on every linear line moving Z the surface adds
+    # nothing, so the audit takes it out: nothing is kept and the lines are reported
+    report, truth = _loop(45003)
+    assert truth["category"] == "outside"
+    assert report["effects"] == []
+    assert len(report["unexplained"]) >= 15
+    audits = [
+        s for s in report["loop"] if s["stage"] == "audit" and s["effect"]["kind"] == "cross_axis"
+    ]
+    assert audits
+    for step in audits:
+        assert "the scale of Z" in step["reason"]
+        assert "the surface explains nothing beyond the noise" in step["reason"]
+
+
 def test_a_sliver_of_structure_that_spreads_over_the_plan_is_not_kept() -> None:
     # blind 36049 (the generator's own plan, 49 lines): a 3 µm Z error periodic in time (102 s),
     # outside every catalogue. A surface EZ over Y×Z took 3.7 % of the held-out error, above the
