@@ -1203,7 +1203,62 @@ def unexplained(
 ) -> list[Unexplained]:
     """Lines whose residual is larger than their repeatability allows, and what it follows
     (:func:`_unexplained_by_line`)."""
-    return [u for _, u in _unexplained_by_line(identification, cross_validation, alpha)]
+    by_line = _unexplained_by_line(identification, cross_validation, alpha)
+    return [u for _, u in by_line] + _scales_apart(identification, alpha)
+
+
+def _scales_apart(identification: Identification, alpha: float) -> list[Unexplained]:
+    """Axes whose scale changes in time beyond the model (:func:`_scales_in_time`), reported
+    across their lines: each linear line moving the axis alone reads, relative to the model,
+    the scale of its own minutes (the least-squares slope of its residual over its targets),
+    listed with the line's mid-time. Line by line the residual follows the target position; only
+    beside each other do the lines say that the scale moved between them (blind 45003: the Z
+    scale swinging 2.5 µm over 80 min, its 16 lines each "following the target position")."""
+    readings = identification.readings
+    moving = _scales_in_time(identification, alpha)
+    start = float(readings.time_s.min())
+    out = []
+    for axis, (p, line, _, combined) in sorted(_unsteady_scales(identification, moving).items()):
+        rows_of = [
+            (index, np.flatnonzero(readings.line == index))
+            for index, other in enumerate(readings.lines)
+            if other.spec.quantity == "linear" and _moved(other.spec) == [axis]
+        ]
+        scales, parts, total = [], [], 0.0
+        for index, rows in rows_of:
+            q = readings.target_mm[rows] - readings.target_mm[rows].mean()
+            r = identification.residual[rows]
+            slope = float(q @ r) / max(float(q @ q), 1e-300)  # µm per mm
+            minutes = (float(readings.time_s[rows].mean()) - start) / 60.0
+            scales.append((minutes, readings.lines[index].name, 1000.0 * slope))
+            parts.append(slope * q)
+            total += float(r @ r)
+        along = np.concatenate(parts)
+        listed = ", ".join(
+            f"{name} {ppm:+.2f} ppm at {t:.0f} min" for t, name, ppm in sorted(scales)
+        )
+        level = (
+            f"its {combined} lines together at log10 false alarm {_log10_text(p)}"
+            if combined > 1
+            else f"line {line.name} at log10 false alarm {_log10_text(p)}"
+        )
+        out.append(
+            Unexplained(
+                where=f"the linear lines moving {axis} alone, over the session",
+                description=(
+                    f"the scale of {axis} changes in time beyond the model ({level}): relative "
+                    "to the model, the "
+                    f"{len(scales)} linear lines moving {axis} alone read the scales of their "
+                    f"own minutes: {listed}; each line alone follows its target position, "
+                    "together they follow the time each was measured at; no effect of the "
+                    "catalogue explains it (a drift of the scale that does not settle, a "
+                    "feedback or compensation that changes during the session)"
+                ),
+                magnitude_um=float(np.sqrt(np.mean(along**2))),
+                correlates_with={"time": float(along @ along) / max(total, 1e-300)},
+            )
+        )
+    return out
 
 
 def _unexplained_by_line(
