@@ -4244,14 +4244,19 @@ def _set_up_for_surface(
             ),
             None,
         )
-        if set_up is None:
+        trial = None if set_up is None else _tried(set_up, fit, rest, without, cv_without, options)
+        if trial is None or not trial.ok:
+            lowered = _lower_order_beside_set_up(surface, rest, fit, current, cv, options)
+            if lowered is not None:
+                current, cv, kept = _lowered(lowered, surface, rest, current, cv, steps, number)
             continue
-        trial = _tried(set_up, fit, rest, without, cv_without, options)
-        if not trial.ok:
-            continue
+        assert set_up is not None
         with_surface, with_set_up, _ = _compared(cv, trial.cv, current, other_fit=trial.refit)
         fewer = _complexity(trial) < _terms(surface, current)
         if with_set_up > with_surface * (1.0 + options.tie) or not fewer:
+            lowered = _lower_order_beside_set_up(surface, rest, fit, current, cv, options)
+            if lowered is not None:
+                current, cv, kept = _lowered(lowered, surface, rest, current, cv, steps, number)
             continue
         reason = (
             f"{set_up.effect.label} explains what it did as well with fewer parameters: "
@@ -4284,6 +4289,126 @@ def _set_up_for_surface(
         kept = _with(rest, set_up.effect, current.model.machine)
         current, cv = trial.refit, trial.cv
     return current, cv, kept
+
+
+class _Lowered(NamedTuple):
+    """A kept surface at one order lower, and a line's set-up error refitted beside it
+    (:func:`_lower_order_beside_set_up`)."""
+
+    lower: CrossAxis
+    lower_fit: Identification
+    cv_lower: CrossValidation
+    trial: _Trial
+    with_surface: float
+    with_both: float
+
+
+def _lower_order_beside_set_up(
+    surface: CrossAxis,
+    rest: list[Effect],
+    fit: _Fitter,
+    current: Identification,
+    cv: CrossValidation,
+    options: LoopOptions,
+) -> _Lowered | None:
+    """A kept surface whose highest order took one line's set-up error: the surface one order
+    lower, beside the strongest set-up finding of the model with it, explains what the surface
+    did as well (within ``tie``) with fewer parameters, the set-up passing every rule against
+    the lower-order model. A surface over the plane of a line that is misaligned reads that
+    line's scale as a shape of where the line lies; at step 1, before the set-up was ever
+    refitted, its higher order predicts the line best (blind 46074, displacement-only plan:
+    EY over X×Y, a pure product of the two positions, kept at order 4 for 0.0548 µm against
+    0.0921 at order 3, the 3.4 mrad cosine error of diag_xy_offcentre taken up by the fourth
+    order and never refitted)."""
+    lowest = 2 if surface.lever_terms else 4
+    if surface.order - 1 < lowest:
+        return None
+    machine = current.model.machine
+    lower = replace(surface, order=surface.order - 1)
+    lower_fit, cv_lower = fit(_with(rest, lower, machine), current.model)
+    findings, _ = diagnose(lower_fit, [e.key for e in (*rest, lower)], options)
+    set_up = next(
+        (
+            f
+            for f in findings
+            if f.effect.line_index is not None and f.log10_false_alarm < np.log10(options.alpha)
+        ),
+        None,
+    )
+    if set_up is None:
+        return None
+    trial = _tried(set_up, fit, [*rest, lower], lower_fit, cv_lower, options)
+    if not trial.ok:
+        return None
+    with_surface, with_both, _ = _compared(cv, trial.cv, current, other_fit=trial.refit)
+    fewer = _terms(lower, trial.refit) + _complexity(trial) < _terms(surface, current)
+    if with_both > with_surface * (1.0 + options.tie) or not fewer:
+        return None
+    return _Lowered(lower, lower_fit, cv_lower, trial, with_surface, with_both)
+
+
+def _lowered(
+    lowered: _Lowered,
+    surface: CrossAxis,
+    rest: list[Effect],
+    current: Identification,
+    cv: CrossValidation,
+    steps: list[Step],
+    number: int,
+) -> tuple[Identification, CrossValidation, list[Effect]]:
+    """The steps and the kept effects of a surface that gives way to itself one order lower
+    beside a line's set-up error (:func:`_lower_order_beside_set_up`)."""
+    lower, trial = lowered.lower, lowered.trial
+    reason = (
+        f"{lower.label} beside {trial.finding.effect.label} explains what it did as well with "
+        f"fewer parameters: cross-validated RMS {lowered.with_surface:.4g} with the surface, "
+        f"{lowered.with_both:.4g} with the two in its place"
+    )
+    steps.append(
+        _later_step(
+            number,
+            surface,
+            current,
+            (trial.refit, trial.cv),
+            False,
+            f"replaced in the backward pass: {reason}",
+            (current, cv),
+            "backward",
+        )
+    )
+    index = list(trial.refit.effects).index(lower)
+    parameters = lower.parameters(
+        trial.refit.effect_parameters[index], trial.refit.effect_covariances[index]
+    )
+    finding = Finding(lower, float("nan"), 0.0, 0, 0.0, 0.0, "backward pass")
+    held = _Trial(finding, trial.refit, trial.cv, True, reason, parameters)
+    steps.append(
+        _step(
+            number,
+            held,
+            True,
+            f"kept in the backward pass in the place of {surface.label}, beside "
+            f"{trial.finding.effect.label}",
+            current,
+            cv,
+            stage="backward",
+        )
+    )
+    steps.append(
+        _step(
+            number,
+            trial,
+            True,
+            f"{trial.reason}; kept in the backward pass beside {lower.label}, in the place of "
+            f"{surface.label}",
+            lowered.lower_fit,
+            lowered.cv_lower,
+            stage="backward",
+        )
+    )
+    machine = current.model.machine
+    kept = _with(_with(rest, lower, machine), trial.finding.effect, machine)
+    return trial.refit, trial.cv, kept
 
 
 #: A model that leaves structure on at least this share of its lines (reported unexplained)
