@@ -1208,36 +1208,55 @@ def unexplained(
 
 
 def _scales_apart(identification: Identification, alpha: float) -> list[Unexplained]:
-    """Axes whose scale changes in time beyond the model (:func:`_scales_in_time`), reported
-    across their lines: each linear line moving the axis alone reads, relative to the model,
-    the scale of its own minutes (the least-squares slope of its residual over its targets),
-    listed with the line's mid-time. Line by line the residual follows the target position; only
-    beside each other do the lines say that the scale moved between them (blind 45003: the Z
-    scale swinging 2.5 µm over 80 min, its 16 lines each "following the target position")."""
+    """Axes whose scale changes in time beyond the model (:func:`_scales_in_time`) and whose
+    linear lines, moving the axis alone at different times, read different scales (the
+    least-squares slope of each line's residual over its targets, relative to the model): a χ²
+    of the slopes about their weighted mean, each against its noise (the line's scatter about
+    its targets' means per direction), Bonferroni over the axes, at ``alpha``. Listed with each
+    line's mid-time. Line by line the residual follows the target position; only beside each
+    other do the lines say that the scale moved between them (blind 45003: the Z scale swinging
+    2.5 µm over 80 min, its four Z lines each "following the target position", χ² 15145 on 3
+    degrees of freedom). A structure that only changes within lines (a reflector that twitches,
+    a beam cut, a laser whose wavelength wanders from minute to minute) leaves the lines' scales
+    alike and is reported on its lines alone (blind 46012, 46033, 46005: χ² 0.0–10.9 on 2–3)."""
     readings = identification.readings
     moving = _scales_in_time(identification, alpha)
     start = float(readings.time_s.min())
     out = []
     for axis, (p, line, _, combined) in sorted(_unsteady_scales(identification, moving).items()):
-        rows_of = [
-            (index, np.flatnonzero(readings.line == index))
+        lines = [
+            index
             for index, other in enumerate(readings.lines)
             if other.spec.quantity == "linear" and _moved(other.spec) == [axis]
         ]
-        scales, parts, total = [], [], 0.0
-        for index, rows in rows_of:
+        if len(lines) < 2:
+            continue
+        slopes, variances, times, parts, total = [], [], [], [], 0.0
+        for index in lines:
+            rows = np.flatnonzero(readings.line == index)
             q = readings.target_mm[rows] - readings.target_mm[rows].mean()
             r = identification.residual[rows]
-            slope = float(q @ r) / max(float(q @ q), 1e-300)  # µm per mm
-            minutes = (float(readings.time_s[rows].mean()) - start) / 60.0
-            scales.append((minutes, readings.lines[index].name, 1000.0 * slope))
-            parts.append(slope * q)
+            _, cell = np.unique(_cell_key(readings, index), return_inverse=True)
+            counts = np.bincount(cell)
+            scatter = float(np.sum(_centred(cell, counts, r) ** 2)) / max(
+                rows.size - counts.size, 1
+            )
+            slopes.append(float(q @ r) / max(float(q @ q), 1e-300))  # µm per mm
+            variances.append(max(scatter, 1e-300) / max(float(q @ q), 1e-300))
+            times.append((float(readings.time_s[rows].mean()) - start) / 60.0)
+            parts.append(slopes[-1] * q)
             total += float(r @ r)
+        slope, weight = np.array(slopes), 1.0 / np.array(variances)
+        chi2 = float(np.sum(weight * (slope - np.sum(weight * slope) / np.sum(weight)) ** 2))
+        apart = float(special.chdtrc(len(lines) - 1, chi2))
+        if apart * len(AXES) >= alpha:
+            continue
         along = np.concatenate(parts)
         listed = ", ".join(
-            f"{name} {ppm:+.2f} ppm at {t:.0f} min" for t, name, ppm in sorted(scales)
+            f"{readings.lines[index].name} {1000.0 * s:+.2f} ppm at {t:.0f} min"
+            for t, index, s in sorted(zip(times, lines, slopes, strict=True))
         )
-        level = (
+        within = (
             f"its {combined} lines together at log10 false alarm {_log10_text(p)}"
             if combined > 1
             else f"line {line.name} at log10 false alarm {_log10_text(p)}"
@@ -1246,13 +1265,14 @@ def _scales_apart(identification: Identification, alpha: float) -> list[Unexplai
             Unexplained(
                 where=f"the linear lines moving {axis} alone, over the session",
                 description=(
-                    f"the scale of {axis} changes in time beyond the model ({level}): relative "
-                    "to the model, the "
-                    f"{len(scales)} linear lines moving {axis} alone read the scales of their "
-                    f"own minutes: {listed}; each line alone follows its target position, "
-                    "together they follow the time each was measured at; no effect of the "
-                    "catalogue explains it (a drift of the scale that does not settle, a "
-                    "feedback or compensation that changes during the session)"
+                    f"the {len(lines)} linear lines moving {axis} alone, measured at different "
+                    f"times, read different scales; relative to the model, at their mid-times: "
+                    f"{listed} (χ² {chi2:.3g} on {len(lines) - 1} degrees of freedom beside "
+                    f"their noise, log10 false alarm {_log10_text(apart)}); within the lines "
+                    f"too the readings follow the distance along them times a course in time "
+                    f"({within}): the scale of {axis} changes in time beyond the model, and "
+                    "no effect of the catalogue explains it (a drift of the scale that does not "
+                    "settle, a feedback or a compensation that changes during the session)"
                 ),
                 magnitude_um=float(np.sqrt(np.mean(along**2))),
                 correlates_with={"time": float(along @ along) / max(total, 1e-300)},
