@@ -266,6 +266,32 @@ def test_a_surface_gives_way_to_the_set_up_error_that_explains_it_as_well() -> N
     )
 
 
+def test_a_surface_whose_highest_order_took_a_set_up_error_gives_way_one_order_lower() -> None:
+    # blind 46074 (displacement-only plan, 0.053 µm noise): EY over X×Y, a product of the two
+    # positions (3.0 µm peak), and a 3.4 mrad misalignment of diag_xy_offcentre (−5.8 ppm), a
+    # line in the surface's plane. Step 1 kept the surface at order 4 (0.0548 µm held out
+    # against 0.0921 at order 3): its fourth order took the cosine error, never refitted. The
+    # backward pass puts the surface one order lower beside the cosine error in its place
+    report, truth = _loop(46074)
+    assert truth["category"] == "effects"
+    assert _kept_places(report) == [("cosine", "diag_xy_offcentre"), ("cross_axis", "Y")]
+    (surface,) = [e for e in report["effects"] if e["kind"] == "cross_axis"]
+    assert sorted(surface["parameters"]["depends_on"]) == ["X", "Y"]
+    (replaced,) = [
+        s
+        for s in report["loop"]
+        if s["stage"] == "backward" and s["effect"]["kind"] == "cross_axis" and not s["kept"]
+    ]
+    assert "(order 4, with lever-arm terms)" in replaced["effect"]["label"]
+    assert "beside cosine misalignment of line diag_xy_offcentre" in replaced["reason"]
+    (cosine,) = [e for e in truth["effects"] if e["kind"] == "cosine"]
+    (fitted,) = [e for e in report["effects"] if e["kind"] == "cosine"]
+    # the line's scale, −θ²/2, is what the plan reads of a misalignment
+    assert fitted["parameters"]["scale_ppm"] == pytest.approx(
+        cosine["parameters"]["scale_ppm"], abs=0.5
+    )
+
+
 def test_a_surface_refused_for_a_line_it_leaves_hands_on_that_lines_set_up_error() -> None:
     # displacement-only plan, 0.41 µm noise: misalignments of body_ppp and diag_yz_pm and a
     # drift of X. A surface EY over X×Z stood in for body_ppp's cosine error (a cosine error of

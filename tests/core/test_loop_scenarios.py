@@ -212,3 +212,25 @@ def test_a_surface_is_not_kept_for_the_disagreement_of_lines_it_leaves_systemati
     assert outcome.kept == set(), outcome.kept
     for name in lines:
         assert any(on_line(where, name) for where in outcome.unexplained_where), name
+
+
+@pytest.mark.parametrize(("seed", "axis"), [(4700004, "Z"), (4700054, None)])
+def test_an_axis_scale_that_moves_between_lines_is_reported_across_them(
+    seed: int, axis: str | None
+) -> None:
+    """Seed 4700004 (demo plan): the Z scale oscillates in time, 8 ppm over 90 min, each Z
+    line 33 min long; each Z line alone follows its target position and time. The report says,
+    across the four lines moving Z alone, that they read different scales at different times.
+    Seed 4700054: a laser that wanders on x_linear_far alone (and x_straight_z_far) makes that
+    line's scale 1.75 ppm off three X lines that agree: it is the line's, reported on it, not a
+    scale of X."""
+    scenario = make_scenario(seed)
+    assert scenario.category == "outside"
+    outcome = run_scenario(scenario)
+    assert outcome.kept == set(), outcome.kept
+    across = [w for w in outcome.unexplained_where if w.startswith("the linear lines moving")]
+    if axis is None:
+        assert across == []
+        assert any(on_line(w, "x_linear_far") for w in outcome.unexplained_where)
+    else:
+        assert across == [f"the linear lines moving {axis} alone, over the session"]
