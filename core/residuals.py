@@ -4271,7 +4271,9 @@ def _set_up_for_surface(
     surface is refitted in its place; the tie rule of a step (:func:`_simplest_best`) is asked
     again of the two. :func:`close_loop` then runs the backward pass once more: another kept
     effect may have taken what the set-up error now explains (blind 41008: a cosine error of
-    body_mpp kept beside the surface that stood in for body_ppp's)."""
+    body_mpp kept beside the surface that stood in for body_ppp's). Where no set-up error takes
+    the surface's place whole, the surface one order lower beside one may
+    (:func:`_lower_order_beside_set_up`)."""
     for surface in [e for e in kept if isinstance(e, CrossAxis)]:
         rest = [e for e in kept if e is not surface]
         without, cv_without = (base, cv_base) if not rest else fit(rest, current.model)
@@ -4285,15 +4287,16 @@ def _set_up_for_surface(
             None,
         )
         trial = None if set_up is None else _tried(set_up, fit, rest, without, cv_without, options)
-        if trial is None or not trial.ok:
-            lowered = _lower_order_beside_set_up(surface, rest, fit, current, cv, options)
-            if lowered is not None:
-                current, cv, kept = _lowered(lowered, surface, rest, current, cv, steps, number)
-            continue
-        assert set_up is not None
-        with_surface, with_set_up, _ = _compared(cv, trial.cv, current, other_fit=trial.refit)
-        fewer = _complexity(trial) < _terms(surface, current)
-        if with_set_up > with_surface * (1.0 + options.tie) or not fewer:
+        if trial is not None and trial.ok:
+            with_surface, with_set_up, _ = _compared(cv, trial.cv, current, other_fit=trial.refit)
+        if (
+            set_up is None
+            or trial is None
+            or not trial.ok
+            or with_set_up > with_surface * (1.0 + options.tie)
+            or _complexity(trial) >= _terms(surface, current)
+        ):
+            # no set-up error takes the surface's place whole: one may take its highest order's
             lowered = _lower_order_beside_set_up(surface, rest, fit, current, cv, options)
             if lowered is not None:
                 current, cv, kept = _lowered(lowered, surface, rest, current, cv, steps, number)
