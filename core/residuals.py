@@ -4278,14 +4278,7 @@ def _set_up_for_surface(
         rest = [e for e in kept if e is not surface]
         without, cv_without = (base, cv_base) if not rest else fit(rest, current.model)
         findings, _ = diagnose(without, [e.key for e in rest], options)
-        set_up = next(
-            (
-                f
-                for f in findings
-                if f.effect.line_index is not None and f.log10_false_alarm < np.log10(options.alpha)
-            ),
-            None,
-        )
+        set_up = _strongest_set_up(findings, options)
         trial = None if set_up is None else _tried(set_up, fit, rest, without, cv_without, options)
         if trial is not None and trial.ok:
             with_surface, with_set_up, _ = _compared(cv, trial.cv, current, other_fit=trial.refit)
@@ -4306,18 +4299,7 @@ def _set_up_for_surface(
             f"cross-validated RMS {with_surface:.4g} with the surface, {with_set_up:.4g} with "
             "the set-up error in its place"
         )
-        steps.append(
-            _later_step(
-                number,
-                surface,
-                current,
-                (trial.refit, trial.cv),
-                False,
-                f"replaced in the backward pass: {reason}",
-                (current, cv),
-                "backward",
-            )
-        )
+        steps.append(_surface_replaced(number, surface, current, cv, trial, reason))
         steps.append(
             _step(
                 number,
@@ -4332,6 +4314,40 @@ def _set_up_for_surface(
         kept = _with(rest, set_up.effect, current.model.machine)
         current, cv = trial.refit, trial.cv
     return current, cv, kept
+
+
+def _strongest_set_up(findings: list[Finding], options: LoopOptions) -> Finding | None:
+    """The strongest finding of a line's set-up error (an Abbe offset, a cosine error) beyond
+    the loop's false-alarm level, if any."""
+    return next(
+        (
+            f
+            for f in findings
+            if f.effect.line_index is not None and f.log10_false_alarm < np.log10(options.alpha)
+        ),
+        None,
+    )
+
+
+def _surface_replaced(
+    number: int,
+    surface: CrossAxis,
+    current: Identification,
+    cv: CrossValidation,
+    trial: _Trial,
+    reason: str,
+) -> Step:
+    """The backward step of a kept surface that gives way to ``trial``'s fit."""
+    return _later_step(
+        number,
+        surface,
+        current,
+        (trial.refit, trial.cv),
+        False,
+        f"replaced in the backward pass: {reason}",
+        (current, cv),
+        "backward",
+    )
 
 
 class _Lowered(NamedTuple):
@@ -4370,14 +4386,7 @@ def _lower_order_beside_set_up(
     lower = replace(surface, order=surface.order - 1)
     lower_fit, cv_lower = fit(_with(rest, lower, machine), current.model)
     findings, _ = diagnose(lower_fit, [e.key for e in (*rest, lower)], options)
-    set_up = next(
-        (
-            f
-            for f in findings
-            if f.effect.line_index is not None and f.log10_false_alarm < np.log10(options.alpha)
-        ),
-        None,
-    )
+    set_up = _strongest_set_up(findings, options)
     if set_up is None:
         return None
     trial = _tried(set_up, fit, [*rest, lower], lower_fit, cv_lower, options)
@@ -4407,18 +4416,7 @@ def _lowered(
         f"fewer parameters: cross-validated RMS {lowered.with_surface:.4g} with the surface, "
         f"{lowered.with_both:.4g} with the two in its place"
     )
-    steps.append(
-        _later_step(
-            number,
-            surface,
-            current,
-            (trial.refit, trial.cv),
-            False,
-            f"replaced in the backward pass: {reason}",
-            (current, cv),
-            "backward",
-        )
-    )
+    steps.append(_surface_replaced(number, surface, current, cv, trial, reason))
     index = list(trial.refit.effects).index(lower)
     parameters = lower.parameters(
         trial.refit.effect_parameters[index], trial.refit.effect_covariances[index]
