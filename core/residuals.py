@@ -1246,7 +1246,12 @@ def _scales_apart(identification: Identification, alpha: float) -> list[Unexplai
             slopes.append(float(q @ r) / max(float(q @ q), 1e-300))  # µm per mm
             variances.append(max(scatter, 1e-300) / max(float(q @ q), 1e-300))
             times.append((float(readings.time_s[rows].mean()) - start) / 60.0)
-            parts.append(slopes[-1] * q)
+            # the size: each run's own scale, within the lines as between them
+            _, run = np.unique(readings.run[rows], return_inverse=True)
+            per_run = np.bincount(run, weights=q * r) / np.maximum(
+                np.bincount(run, weights=q * q), 1e-300
+            )
+            parts.append(per_run[run] * q)
             total += float(r @ r)
         slope, variance = np.array(slopes), np.array(variances)
         chi2, apart = _apart(slope, variance)
