@@ -1223,47 +1223,26 @@ def _scales_apart(identification: Identification, alpha: float) -> list[Unexplai
     46012, 46033)."""
     readings = identification.readings
     moving = _scales_in_time(identification, alpha)
-    start = float(readings.time_s.min())
     out = []
     for axis, (p, line, _, combined) in sorted(_unsteady_scales(identification, moving).items()):
-        lines = [
-            index
-            for index, other in enumerate(readings.lines)
-            if other.spec.quantity == "linear" and _moved(other.spec) == [axis]
-        ]
+        lines = [index for index, moved in _moving_one_axis(readings) if moved == axis]
         if len(lines) < 3:
             continue
-        slopes, variances, times, parts, total = [], [], [], [], 0.0
-        for index in lines:
-            rows = np.flatnonzero(readings.line == index)
-            q = readings.target_mm[rows] - readings.target_mm[rows].mean()
-            r = identification.residual[rows]
-            _, cell = np.unique(_cell_key(readings, index), return_inverse=True)
-            counts = np.bincount(cell)
-            scatter = float(np.sum(_centred(cell, counts, r) ** 2)) / max(
-                rows.size - counts.size, 1
-            )
-            slopes.append(float(q @ r) / max(float(q @ q), 1e-300))  # µm per mm
-            variances.append(max(scatter, 1e-300) / max(float(q @ q), 1e-300))
-            times.append((float(readings.time_s[rows].mean()) - start) / 60.0)
-            # the size: each run's own scale, within the lines as between them
-            _, run = np.unique(readings.run[rows], return_inverse=True)
-            per_run = np.bincount(run, weights=q * r) / np.maximum(
-                np.bincount(run, weights=q * q), 1e-300
-            )
-            parts.append(per_run[run] * q)
-            total += float(r @ r)
-        slope, variance = np.array(slopes), np.array(variances)
+        scales = [_line_scale(identification, index) for index in lines]
+        slope = np.array([scale.slope for scale in scales])
+        variance = np.array([scale.variance for scale in scales])
         chi2, apart = _apart(slope, variance)
         without = max(
             _apart(np.delete(slope, i), np.delete(variance, i))[1] for i in range(len(lines))
         )
         if apart * len(AXES) >= alpha or without * len(AXES) >= APART_WITHOUT_ANY_LEVEL:
             continue
-        along = np.concatenate(parts)
+        along = np.concatenate([scale.by_run for scale in scales])
+        total = sum(scale.energy for scale in scales)
         listed = ", ".join(
-            f"{readings.lines[index].name} {1000.0 * s:+.2f} ppm at {t:.0f} min"
-            for t, index, s in sorted(zip(times, lines, slopes, strict=True))
+            f"{readings.lines[index].name} {1000.0 * scale.slope:+.2f} ppm at "
+            f"{scale.minutes:.0f} min"
+            for scale, index in sorted(zip(scales, lines, strict=True), key=lambda x: x[0].minutes)
         )
         within = (
             f"its {combined} lines together at log10 false alarm {_log10_text(p)}"
@@ -1289,6 +1268,37 @@ def _scales_apart(identification: Identification, alpha: float) -> list[Unexplai
             )
         )
     return out
+
+
+class _LineScale(NamedTuple):
+    """One linear line's scale relative to a fit (:func:`_line_scale`)."""
+
+    slope: float  # µm per mm: the least-squares slope of its residual over its targets
+    variance: float  # of the slope, from the line's scatter about its targets' means per direction
+    minutes: float  # its mid-time, from the session's first reading
+    by_run: FloatArray  # per reading: its run's own slope times the distance from the line's middle
+    energy: float  # the line's residual sum of squares
+
+
+def _line_scale(fit: Identification, index: int) -> _LineScale:
+    """Line ``index``'s scale relative to ``fit`` (:class:`_LineScale`)."""
+    readings = fit.readings
+    rows = np.flatnonzero(readings.line == index)
+    q = readings.target_mm[rows] - readings.target_mm[rows].mean()
+    r = fit.residual[rows]
+    qq = max(float(q @ q), 1e-300)
+    _, cell = np.unique(_cell_key(readings, index), return_inverse=True)
+    counts = np.bincount(cell)
+    scatter = float(np.sum(_centred(cell, counts, r) ** 2)) / max(rows.size - counts.size, 1)
+    _, run = np.unique(readings.run[rows], return_inverse=True)
+    per_run = np.bincount(run, weights=q * r) / np.maximum(np.bincount(run, weights=q * q), 1e-300)
+    return _LineScale(
+        float(q @ r) / qq,
+        max(scatter, 1e-300) / qq,
+        float(readings.time_s[rows].mean()) / 60.0,  # time_s counts from the first reading
+        per_run[run] * q,
+        float(r @ r),
+    )
 
 
 #: The lines of an axis read different scales (:func:`_scales_apart`) when, without any one of
@@ -2123,6 +2133,15 @@ def _moved(spec: LineSpec) -> list[str]:
     return [axis for axis in AXES if abs(spec.direction[AXIS_INDEX[axis]]) > 1e-6]
 
 
+def _moving_one_axis(readings: Readings) -> list[tuple[int, str]]:
+    """The linear lines that move one axis alone: (line index, axis)."""
+    return [
+        (index, _moved(line.spec)[0])
+        for index, line in enumerate(readings.lines)
+        if line.spec.quantity == "linear" and len(_moved(line.spec)) == 1
+    ]
+
+
 def _scales_in_time(fit: Identification, alpha: float) -> dict[int, tuple[str, float, float, int]]:
     """Linear lines moving one axis alone whose scale changes in time beyond what ``fit``
     holds: what the fit leaves follows the distance along the line times a course in the line's
@@ -2136,11 +2155,7 @@ def _scales_in_time(fit: Identification, alpha: float) -> dict[int, tuple[str, f
     index: the axis, the false-alarm level (the line's, or its axis' lines' together), the
     course's RMS (µm), and how many lines that level combines (1: the line alone)."""
     readings = fit.readings
-    alone = [
-        (index, _moved(line.spec)[0])
-        for index, line in enumerate(readings.lines)
-        if line.spec.quantity == "linear" and len(_moved(line.spec)) == 1
-    ]
+    alone = _moving_one_axis(readings)
     out: dict[int, tuple[str, float, float, int]] = {}
     by_axis: dict[str, list[tuple[int, tuple[float, float]]]] = {}
     for index, axis in alone:
