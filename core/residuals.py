@@ -2723,6 +2723,25 @@ class _State:
     #: per axis: a kept searched cycle's aliases
     aliased: dict[str, tuple[float, ...]] = field(default_factory=dict)
     number: int = 0
+    #: the first step that kept a surface over a line's set-up error that passed every rule
+    #: (:func:`_other_route`); None where none did, or on the route that took the set-up
+    fork: _Fork | None = None
+    #: False on the second route: it forks no further
+    may_fork: bool = True
+
+
+@dataclass(frozen=True, eq=False)
+class _Fork:
+    """A step that kept a surface where a line's set-up error passed every rule too: the model
+    before it, its rows, the set-up's trial and what the state held then."""
+
+    number: int
+    first_row: int
+    surface: _Trial
+    set_up: _Trial
+    #: every candidate the step refitted
+    tried: list[_Trial]
+    state: _State
 
 
 def _forward(
@@ -2836,6 +2855,8 @@ def _forward(
                     break
                 chosen = _kept_re_placed(moved, number, current, cv, steps)
         else:
+            if state.may_fork and state.fork is None:
+                state.fork = _fork_at(state, chosen, tried_this_step, number, steps, current, cv)
             # rivals of a kept surface the step's batches left out: refitted to be named only
             extra = []
             for finding in _untried_places(findings, tried_this_step, chosen, options):
@@ -2856,6 +2877,46 @@ def _forward(
         current, cv = chosen.refit, chosen.cv
         current, cv, kept = _refine(fit, current, cv, kept, base, steps, number, options.alpha)
     state.current, state.cv, state.kept, state.number = current, cv, kept, number
+
+
+def _fork_at(
+    state: _State,
+    chosen: _Trial,
+    tried: list[_Trial],
+    number: int,
+    steps: list[Step],
+    current: Identification,
+    cv: CrossValidation,
+) -> _Fork | None:
+    """Where step ``number`` keeps a surface and a line's set-up error passed every rule beside
+    it, the fork the second route starts from (:func:`_other_route`): the best-predicting such
+    set-up error, and the state as it stood before the step."""
+    if not isinstance(chosen.finding.effect, CrossAxis):
+        return None
+    set_ups = [
+        t
+        for t in tried
+        if t.ok and t is not chosen and isinstance(t.finding.effect, (AbbeOffset, Cosine))
+    ]
+    if not set_ups:
+        return None
+    first_row = next(i for i, row in enumerate(steps) if row.step == number)
+    before = _State(
+        current,
+        cv,
+        kept=[e for e in current.effects if isinstance(e, Effect)],
+        steps=list(steps),
+        warnings=list(state.warnings),
+        refused=dict(state.refused),
+        refused_beside=dict(state.refused_beside),
+        ambiguous={key: list(value) for key, value in state.ambiguous.items()},
+        shape_doubt=dict(state.shape_doubt),
+        rivals=dict(state.rivals),
+        aliased=dict(state.aliased),
+        number=number,
+        may_fork=False,
+    )
+    return _Fork(number, first_row, chosen, min(set_ups, key=lambda t: t.score), tried, before)
 
 
 def _tried(
@@ -3308,26 +3369,12 @@ def _close_loop(
         )
     fit = _Fitter(measurement, readings, options, redundant, cancel)
     state = _State(base, cv_base)
-    # the kept sets the rounds started from: a round that would start from one again, every
-    # candidate scored anew, would repeat that round step for step
-    starts: list[frozenset[EffectKey]] = []
-    for _ in range(AUDIT_ROUNDS):
-        starts.append(frozenset(e.key for e in state.kept))
-        _forward(state, fit, options, progress, cancel, base)
-        _prune(_backward, state, fit, base, cv_base, options)
-        placed = frozenset(e.key for e in state.kept)
-        _prune(_set_up_for_surface, state, fit, base, cv_base, options)
-        if frozenset(e.key for e in state.kept) != placed:  # a surface gave way: ask again
-            _prune(_backward, state, fit, base, cv_base, options)
-        if (
-            not _prune(_audit, state, fit, base, cv_base, options)
-            or state.number >= options.max_steps
-            or frozenset(e.key for e in state.kept) in starts
-        ):
-            break
-        # what the taken-out effect held is the others' again: every candidate is scored anew
-        state.refused.clear()
-        state.refused_beside.clear()
+
+    def rounds(on: _State, progress: ProgressCallback | None) -> None:
+        _rounds(on, fit, options, progress, cancel, base, cv_base)
+
+    rounds(state, progress)
+    state = _other_route(state, rounds, fit, options, progress, base)
     current, cv, kept = state.current, state.cv, state.kept
     if any(isinstance(e, AbbeOffset) for e in kept):
         current, cv = fit.converged(kept, current.model)
@@ -3370,6 +3417,118 @@ def _close_loop(
         shared,
         spacing,
         rivals,
+    )
+
+
+def _rounds(
+    state: _State,
+    fit: _Fitter,
+    options: LoopOptions,
+    progress: ProgressCallback | None,
+    cancel: CancelToken | None,
+    base: Identification,
+    cv_base: CrossValidation,
+) -> None:
+    """The forward steps, the backward pass, the set-up errors in the place of surfaces and the
+    audit, in rounds while the audit takes an effect out."""
+    # the kept sets the rounds started from: a round that would start from one again, every
+    # candidate scored anew, would repeat that round step for step
+    starts: list[frozenset[EffectKey]] = []
+    for _ in range(AUDIT_ROUNDS):
+        starts.append(frozenset(e.key for e in state.kept))
+        _forward(state, fit, options, progress, cancel, base)
+        _prune(_backward, state, fit, base, cv_base, options)
+        placed = frozenset(e.key for e in state.kept)
+        _prune(_set_up_for_surface, state, fit, base, cv_base, options)
+        if frozenset(e.key for e in state.kept) != placed:  # a surface gave way: ask again
+            _prune(_backward, state, fit, base, cv_base, options)
+        if (
+            not _prune(_audit, state, fit, base, cv_base, options)
+            or state.number >= options.max_steps
+            or frozenset(e.key for e in state.kept) in starts
+        ):
+            break
+        # what the taken-out effect held is the others' again: every candidate is scored anew
+        state.refused.clear()
+        state.refused_beside.clear()
+
+
+def _other_route(
+    state: _State,
+    rounds: Callable[[_State, ProgressCallback | None], None],
+    fit: _Fitter,
+    options: LoopOptions,
+    progress: ProgressCallback | None,
+    base: Identification,
+) -> _State:
+    """The loop again from the first step that kept a surface over a line's set-up error that
+    passed every rule too (:func:`_fork_at`), with the set-up error kept there instead; the
+    route that ends predicting the held-out data better by ``margin``, or as well (within
+    ``tie``) with fewer parameters, is the loop's; ``rounds`` runs the loop's rounds
+    (:func:`_rounds`) on a state.
+
+    Each step keeps what predicts best at that step, and a surface takes more of what is still
+    missing than one line's set-up error does: the rest of the loop then builds on it. On a
+    plan of diagonals a surface over the wrong plane took a misaligned line's scale, a second
+    surface what the first bent, and the true surface never showed (blind 45017,
+    displacement-only plan: EY over X×Y of order 4 kept at step 2 for 0.152 µm against 0.167 µm
+    for a 3.3 mrad cosine error of body_ppp, then EY over X×Z of order 8; 0.0935 µm held out,
+    25 parameters, 10 lines unexplained. With the cosine error kept at step 2, EY over Y×Z —
+    the injected surface — and the cycle: 0.0836 µm, 8 parameters). Backward passes replace one
+    effect at a time and cannot undo that. One fork per loop: the first such step."""
+    fork = state.fork
+    if fork is None:
+        return state
+    other, set_up, surface = fork.state, fork.set_up, fork.surface
+    rows = other.steps[fork.first_row :]
+    other.steps = other.steps[: fork.first_row] + [
+        _swapped(row, fork, options.margin) for row in rows
+    ]
+    kept = [e for e in set_up.refit.effects if isinstance(e, Effect)]
+    other.current, other.cv, other.kept = _refine(
+        fit, set_up.refit, set_up.cv, kept, base, other.steps, fork.number, options.alpha
+    )
+
+    def onward(fraction: float, message: str) -> None:  # the second route: 85–90 %
+        report(progress, 0.85 + 0.05 * fraction, f"second route from step {fork.number}: {message}")
+
+    rounds(other, onward)
+    ended, ended_other, _ = _compared(state.cv, other.cv, state.current, other_fit=other.current)
+    terms = sum(_terms(e, state.current) for e in state.kept)
+    terms_other = sum(_terms(e, other.current) for e in other.kept)
+    taken = ended_other < ended * (1.0 - options.margin) or (
+        ended_other <= ended * (1.0 + options.tie) and terms_other < terms
+    )
+    said = (
+        f"the loop ran on from this step both ways: with {surface.finding.effect.label} kept "
+        f"it ended at a cross-validated RMS of {ended:.4g} with {terms} parameters, with "
+        f"{set_up.finding.effect.label} kept at {ended_other:.4g} with {terms_other}"
+    )
+    chosen = other if taken else state
+    for at in range(fork.first_row, fork.first_row + len(rows)):
+        row = chosen.steps[at]
+        if (
+            row.finding.effect is set_up.finding.effect
+            or row.finding.effect is surface.finding.effect
+        ):
+            chosen.steps[at] = replace(row, reason=f"{row.reason}; {said}")
+    return chosen
+
+
+def _swapped(row: Step, fork: _Fork, margin: float) -> Step:
+    """A row of the step a second route forks at (:func:`_other_route`), with the set-up error
+    kept there in the surface's place."""
+    effect = row.finding.effect
+    if effect is fork.set_up.finding.effect:
+        return replace(row, kept=True, verdict="kept", reason=fork.set_up.reason)
+    trial = next((t for t in fork.tried if t.finding.effect is effect), None)
+    if trial is None or not trial.ok:
+        return row
+    return replace(
+        row,
+        kept=False,
+        verdict="another kept",
+        reason=f"{trial.reason}{_kept_instead(fork.set_up, trial, margin)}",
     )
 
 

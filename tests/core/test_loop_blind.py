@@ -292,6 +292,30 @@ def test_a_surface_whose_highest_order_took_a_set_up_error_gives_way_one_order_l
     )
 
 
+def test_a_set_up_error_second_to_a_surface_is_followed_to_the_end_of_a_second_route() -> None:
+    # blind 45017 (displacement-only plan, 0.082 µm noise): a 16 mm cycle of Z, EY over Y×Z
+    # (1.5 µm peak) and a 3.3 mrad misalignment of body_ppp (−5.3 ppm). Step 2 kept EY over X×Y
+    # (0.152 µm held out) over the cosine error (0.167 µm), step 3 a second surface EY over
+    # X×Z: 0.0935 µm, 25 parameters, 10 lines reported. The loop runs on from step 2 with the
+    # cosine error kept instead, finds EY over Y×Z at step 3 and ends at 0.0836 µm with 8
+    report, truth = _loop(45017)
+    assert truth["category"] == "effects"
+    assert _kept_places(report) == [("cosine", "body_ppp"), ("cross_axis", "Y"), ("cyclic", "Z")]
+    (surface,) = [e for e in report["effects"] if e["kind"] == "cross_axis"]
+    assert sorted(surface["parameters"]["depends_on"]) == ["Y", "Z"]
+    assert report["unexplained"] == []
+    (forked,) = [
+        s for s in report["loop"] if s["step"] == 2 and s["kept"] and s["stage"] == "forward"
+    ]
+    assert forked["effect"]["kind"] == "cosine"
+    assert "the loop ran on from this step both ways" in forked["reason"]
+    (cosine,) = [e for e in truth["effects"] if e["kind"] == "cosine"]
+    (fitted,) = [e for e in report["effects"] if e["kind"] == "cosine"]
+    assert fitted["parameters"]["scale_ppm"] == pytest.approx(
+        cosine["parameters"]["scale_ppm"], abs=0.5
+    )
+
+
 def test_a_surface_refused_for_a_line_it_leaves_hands_on_that_lines_set_up_error() -> None:
     # displacement-only plan, 0.41 µm noise: misalignments of body_ppp and diag_yz_pm and a
     # drift of X. A surface EY over X×Z stood in for body_ppp's cosine error (a cosine error of
