@@ -2360,6 +2360,8 @@ NULL_LEVEL = 1e-2
 SET_UP_TIE = 0.99
 #: The verdict of two set-up errors kept in one refit (:func:`_set_up_pairs`).
 TOGETHER = "kept together"
+#: How a step's rows say that the loop ran on from it two ways (:func:`_other_route`).
+BOTH_WAYS = "the loop ran on from this step both ways"
 #: A line shows an effect when what the 21 errors cannot absorb of it there reaches 4 σ.
 SHOWN_SIGMA2 = 16.0
 #: As many lines as this disagreeing with the rest are "a few lines" of their own to
@@ -3500,7 +3502,7 @@ def _other_route(
         ended_other <= ended * (1.0 + options.tie) and terms_other < terms
     )
     said = (
-        f"the loop ran on from this step both ways: with {surface.finding.effect.label} kept "
+        f"{BOTH_WAYS}: with {surface.finding.effect.label} kept "
         f"it ended at a cross-validated RMS of {ended:.4g} with {terms} parameters, with "
         f"{set_up.finding.effect.label} kept at {ended_other:.4g} with {terms_other}"
     )

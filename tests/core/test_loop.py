@@ -466,6 +466,11 @@ def test_the_console_says_why_an_effect_was_taken_out_and_what_was_kept_together
     assert told == [f"   step 2, cosine misalignment of line x_lin taken out: {why} (2)"]
     # two set-up errors kept in one refit say so
     assert [r.split()[0] for r in table if r.endswith("yes, together")] == ["3"]
+    # a step that kept what did not predict best there, the loop having run on both ways, says so
+    both = "the loop ran on from this step both ways: with a surface kept it ended at 0.09"
+    result["loop"][0]["reason"] = f"cross-validated RMS 0.22 → 0.17; {both}"
+    told = [r for r in summary_table(result).splitlines() if "both ways" in r]
+    assert told == [f"   step 1, cosine misalignment of line x_lin kept: {both}"]
 
 
 def test_a_refit_within_its_uncertainty_of_nothing_is_refused_on_its_wald_statistic() -> None:
