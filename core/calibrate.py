@@ -391,7 +391,7 @@ def summary_table(result: Mapping[str, Any]) -> str:
     for step, label in zip(result["loop"], labels, strict=True):
         if step.get("stage") in ("backward", "audit") and not step["kept"]:
             lines.append(f"   step {step['step']}, {label} taken out: {step['reason']}")
-        elif step["kept"] and BOTH_WAYS in step["reason"]:
+        elif step["kept"] and BOTH_WAYS in step.get("reason", ""):
             why = step["reason"][step["reason"].index(BOTH_WAYS) :]
             lines.append(f"   step {step['step']}, {label} kept: {why}")
     basis = result.get("basis")
