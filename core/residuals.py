@@ -3372,8 +3372,30 @@ def _close_loop(
     fit = _Fitter(measurement, readings, options, redundant, cancel)
     state = _State(base, cv_base)
 
-    def rounds(on: _State, progress: ProgressCallback | None) -> None:
-        _rounds(on, fit, options, progress, cancel, base, cv_base)
+    def rounds(state: _State, progress: ProgressCallback | None) -> None:
+        """The forward steps, the backward pass, the set-up errors in the place of surfaces and
+        the audit, in rounds while the audit takes an effect out."""
+        # the kept sets the rounds started from: a round that would start from one again, every
+        # candidate scored anew, would repeat that round step for step
+        starts: list[frozenset[EffectKey]] = []
+        for _ in range(AUDIT_ROUNDS):
+            starts.append(frozenset(e.key for e in state.kept))
+            _forward(state, fit, options, progress, cancel, base)
+            _prune(_backward, state, fit, base, cv_base, options)
+            placed = frozenset(e.key for e in state.kept)
+            _prune(_set_up_for_surface, state, fit, base, cv_base, options)
+            if frozenset(e.key for e in state.kept) != placed:  # a surface gave way: ask again
+                _prune(_backward, state, fit, base, cv_base, options)
+            if (
+                not _prune(_audit, state, fit, base, cv_base, options)
+                or state.number >= options.max_steps
+                or frozenset(e.key for e in state.kept) in starts
+            ):
+                break
+            # what the taken-out effect held is the others' again: every candidate is scored
+            # anew
+            state.refused.clear()
+            state.refused_beside.clear()
 
     rounds(state, progress)
     state = _other_route(state, rounds, fit, options, progress, base)
@@ -3422,39 +3444,6 @@ def _close_loop(
     )
 
 
-def _rounds(
-    state: _State,
-    fit: _Fitter,
-    options: LoopOptions,
-    progress: ProgressCallback | None,
-    cancel: CancelToken | None,
-    base: Identification,
-    cv_base: CrossValidation,
-) -> None:
-    """The forward steps, the backward pass, the set-up errors in the place of surfaces and the
-    audit, in rounds while the audit takes an effect out."""
-    # the kept sets the rounds started from: a round that would start from one again, every
-    # candidate scored anew, would repeat that round step for step
-    starts: list[frozenset[EffectKey]] = []
-    for _ in range(AUDIT_ROUNDS):
-        starts.append(frozenset(e.key for e in state.kept))
-        _forward(state, fit, options, progress, cancel, base)
-        _prune(_backward, state, fit, base, cv_base, options)
-        placed = frozenset(e.key for e in state.kept)
-        _prune(_set_up_for_surface, state, fit, base, cv_base, options)
-        if frozenset(e.key for e in state.kept) != placed:  # a surface gave way: ask again
-            _prune(_backward, state, fit, base, cv_base, options)
-        if (
-            not _prune(_audit, state, fit, base, cv_base, options)
-            or state.number >= options.max_steps
-            or frozenset(e.key for e in state.kept) in starts
-        ):
-            break
-        # what the taken-out effect held is the others' again: every candidate is scored anew
-        state.refused.clear()
-        state.refused_beside.clear()
-
-
 def _other_route(
     state: _State,
     rounds: Callable[[_State, ProgressCallback | None], None],
@@ -3466,8 +3455,8 @@ def _other_route(
     """The loop again from the first step that kept a surface over a line's set-up error that
     passed every rule too (:func:`_fork_at`), with the set-up error kept there instead; the
     route that ends predicting the held-out data better by ``margin``, or as well (within
-    ``tie``) with fewer parameters, is the loop's; ``rounds`` runs the loop's rounds
-    (:func:`_rounds`) on a state.
+    ``tie``) with fewer parameters, is the loop's; ``rounds`` runs the loop's rounds (forward
+    steps, backward passes, audits) on a state.
 
     Each step keeps what predicts best at that step, and a surface takes more of what is still
     missing than one line's set-up error does: the rest of the loop then builds on it. On a
