@@ -2861,8 +2861,11 @@ def _forward(
                 state.fork = _fork_at(state, chosen, tried_this_step, number, steps, current, cv)
             # rivals of a kept surface the step's batches left out: refitted to be named only
             extra = []
-            for finding in _untried_places(findings, tried_this_step, chosen, options):
-                extra.append(_tried(finding, fit, kept, current, cv, options))
+            for orders in _untried_places(findings, tried_this_step, chosen, options):
+                for finding in orders:
+                    extra.append(_tried(finding, fit, kept, current, cv, options))
+                    if extra[-1].verdict != "implausible":
+                        break
             if extra:
                 at = tried_this_step.index(chosen)
                 tried_this_step = _on_common_rows(tried_this_step + extra)
@@ -3049,18 +3052,22 @@ def _doubts(state: _State, chosen: _Trial, trials: list[_Trial], options: LoopOp
 
 def _untried_places(
     findings: list[Finding], tried: list[_Trial], chosen: _Trial, options: LoopOptions
-) -> list[Finding]:
-    """For a kept surface: the strongest finding of each other direction and pair of axes no
-    refit of the step tried, where the diagnosis gives it nearly the chosen one's gain (at least
-    :data:`RIVAL_GAIN_SHARE` of it), up to ``candidates_per_step``. A plan that sees a surface on
-    one line sees every surface alike there (blind 27068: six places within 1 % of one
-    another's gain, the injected one fourth): each is refitted, only so the report can name
-    it as a rival that fits as well."""
+) -> list[list[Finding]]:
+    """For a kept surface: each other direction and pair of axes no refit of the step tried,
+    where the diagnosis gives its strongest finding nearly the chosen one's gain (at least
+    :data:`RIVAL_GAIN_SHARE` of it), up to ``candidates_per_step``; per place, its findings
+    strongest first. A plan that sees a surface on one line sees every surface alike there
+    (blind 27068: six places within 1 % of one another's gain, the injected one fourth): each
+    is refitted, only so the report can name it as a rival that fits as well. The caller
+    refits a place's next finding when one is refused as implausible: the strongest is often
+    its highest order, which a sparse plan lets swing far off the lines that measure it (blind
+    47031, direct plan: EZ over X×Z of order 8 peaked at 69 µm where order 6 predicts the
+    held-out data as well as the kept EZ over Y×Z, and was not named)."""
     effect = chosen.finding.effect
     if not isinstance(effect, CrossAxis):
         return []
     seen = {_surface_place(t.finding.effect) for t in tried}
-    out: list[Finding] = []
+    places: dict[tuple[str, frozenset[str]], list[Finding]] = {}
     for finding in sorted(findings, key=lambda f: -f.gain):
         place = _surface_place(finding.effect)
         if (
@@ -3070,9 +3077,8 @@ def _untried_places(
             or finding.gain < RIVAL_GAIN_SHARE * chosen.finding.gain
         ):
             continue
-        seen.add(place)
-        out.append(finding)
-    return out[: options.candidates_per_step]
+        places.setdefault(place, []).append(finding)
+    return list(places.values())[: options.candidates_per_step]
 
 
 #: A surface of another place is refitted as a kept one's possible rival where the diagnosis
