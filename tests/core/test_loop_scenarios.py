@@ -199,6 +199,7 @@ def test_a_surface_implausible_at_its_highest_order_is_refitted_at_lower_ones() 
         (4500087, "sparse", {"y_straight_z", "z_straight_y"}),
         (4500143, "sparse", {"x_linear", "x_straight_y"}),
         (4700074, "twelve-line", {"diag_xz_pp", "x_lin_2", "z_lin_1"}),
+        (5000106, "sparse", {"x_linear", "x_straight_z_offset", "y_linear", "z_straight_x"}),
     ],
 )
 def test_a_surface_is_not_kept_for_the_disagreement_of_lines_it_leaves_systematic(
@@ -213,7 +214,10 @@ def test_a_surface_is_not_kept_for_the_disagreement_of_lines_it_leaves_systemati
     twitching lines are reported unexplained. Seed 4700074 (twelve-line plan, 0.12 µm noise):
     3.8 µm twitches of three lines, a quarter of the plan; a finer ECX was kept, 7.8 % better
     held out, all of it on two of them, which it left systematic — a finer function relieves the
-    pull as a surface does."""
+    pull as a surface does. Seed 5000106 (sparse plan, 0.14 µm noise): 2.2 µm twitches of four
+    lines pull two more, six of 21 systematic, too many for the test when the surface EX over
+    X×Z of order 8 was kept (6.9 % better held out); beside it the four twitching lines alone
+    stay systematic, and the final audit asks it then: without them it is 0.1 % worse."""
     outcome = run_scenario(make_scenario(seed))
     assert outcome.category == "outside" and outcome.plan == plan
     assert outcome.kept == set(), outcome.kept
