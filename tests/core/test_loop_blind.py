@@ -668,6 +668,27 @@ def test_a_rival_place_whose_highest_order_swings_off_the_lines_is_named_at_a_lo
     )
 
 
+def test_an_abbe_offset_that_grows_past_the_optics_reach_once_settled_is_not_kept() -> None:
+    # direct plan, a surface EZ over X×Y: an Abbe offset of z_straight_y fits it there, (−52,
+    # 0, 93) mm in the step's one solve and (−68, 0, 123) mm once offset and angles agree in
+    # the final model, beyond the 100 mm a set-up can be off: it was kept, implausible in the
+    # report. Judged settled, it is refused, and a surface is kept with the injected place
+    # among its named rivals
+    report, truth = _loop(48071)
+    assert "abbe_offset" not in {e["kind"] for e in report["effects"]}
+    (row,) = [
+        s for s in report["loop"] if s["effect"]["label"] == "Abbe offset of line z_straight_y"
+    ]
+    assert row["verdict"] == "implausible"
+    assert "once its lever arm and the angles agree" in row["reason"]
+    (kept,) = [e for e in report["effects"] if e["kind"] == "cross_axis"]
+    places = {
+        (e["axis"], tuple(sorted(e["parameters"]["depends_on"])))
+        for e in [kept, *kept["rivals"]["effects"]]
+    }
+    assert ("Z", ("X", "Y")) in places
+
+
 def test_a_drift_the_angular_lines_confirm_is_kept() -> None:
     # full plan; X expands over the session (τ ≈ 2 h) and the first line, x_linear, sees it
     # before it settles; the later displacement lines cannot tell it from EXX, but the angular
