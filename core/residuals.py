@@ -1984,6 +1984,23 @@ def _judge(
     return _Trial(finding, refit, cv_new, True, reason, parameters, score=after, rows=rows)
 
 
+def _systematic_lines(fitted: Identification, alpha: float) -> list[int]:
+    """The lines ``fitted`` leaves systematic (:func:`_systematic`), by index."""
+    readings = fitted.readings
+    count = len(readings.lines)
+    return [
+        index
+        for index in range(count)
+        if _systematic(_line_test(readings, fitted.residual, index), count, alpha)
+    ]
+
+
+def _widespread(systematic: list[int], count: int) -> bool:
+    """Whether as many of a plan's ``count`` lines are systematic as structure the model still
+    lacks, rather than a few lines' own (:data:`WIDESPREAD_SHARE`, :data:`FEW_LINES`)."""
+    return len(systematic) >= max(WIDESPREAD_SHARE * count, FEW_LINES + 1)
+
+
 def _systematic(test: _LineTest, lines: int, alpha: float) -> bool:
     """Whether a line's tests (:func:`_line_test`) find it beyond its repeatability, as
     :func:`unexplained` reports a line: each test held to ``alpha``, Bonferroni over the
@@ -2033,19 +2050,12 @@ def _gained_through_lines_it_leaves(
     on diag_xz_pp and x_lin_2, which it left systematic."""
     readings = refit.readings
     options = fit.loop_options
-    count = len(readings.lines)
-
-    def systematic(fitted: Identification) -> list[int]:
-        return [
-            index
-            for index in range(count)
-            if _systematic(_line_test(readings, fitted.residual, index), count, options.alpha)
-        ]
-
-    if len(systematic(spread_in or current)) >= max(WIDESPREAD_SHARE * count, FEW_LINES + 1):
+    if _widespread(_systematic_lines(spread_in or current, options.alpha), len(readings.lines)):
         return None  # structure still missing, not a few lines of their own
     left = frozenset(
-        readings.lines[index].name for index in systematic(refit) if per_line[index] >= SHOWN_SIGMA2
+        readings.lines[index].name
+        for index in _systematic_lines(refit, options.alpha)
+        if per_line[index] >= SHOWN_SIGMA2
     )
     if not left:
         return None
@@ -4798,17 +4808,11 @@ def _carried_to_the_end(
     structure still missing spoils lines a surface is read on. Where the effects kept after it
     explained that structure, the few lines still systematic are something of their own, and a
     surface whose held-out gain is their pull on the 21 errors explains nothing of the machine
-    (indep. 5000106, direct plan, 2.2 µm reflector twitches on four lines outside the
+    (indep. 5000106, sparse plan, 2.2 µm reflector twitches on four lines outside the
     catalogue: six lines systematic, a surface EX over X×Z of order 8 kept at 6.9 % better held
     out, the four twitching lines still systematic beside it and nothing else kept)."""
-    count = len(current.readings.lines)
-    alpha = fit.loop_options.alpha
-    left = [
-        index
-        for index in range(count)
-        if _systematic(_line_test(current.readings, current.residual, index), count, alpha)
-    ]
-    if not left or len(left) >= max(WIDESPREAD_SHARE * count, FEW_LINES + 1):
+    left = _systematic_lines(current, fit.loop_options.alpha)
+    if not left or _widespread(left, len(current.readings.lines)):
         return None
     rest = [e for e in kept if e is not effect]
     without, cv_without = (base, cv_base) if not rest else fit(rest, current.model)
