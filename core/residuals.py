@@ -957,7 +957,14 @@ def _search_period(
     gains = {int(i): projected_gain(float(frequencies[i])) for i in candidates}
     best = max(gains, key=lambda i: gains[i])
     if frequencies[best] > cutoff:
-        rivals = [gains[i] for i in gains if i != best]
+        # the best peak's own harmonics are the same cycle, not an alias that fits as well:
+        # blind 48041, a 15.4 mm cycle of X with a 1.3 µm second harmonic, lost to a 36 mm one
+        rivals = [
+            gains[i]
+            for i in gains
+            if i != best
+            and not any(abs(frequencies[i] - h * frequencies[best]) <= 2.0 / span for h in (2, 3))
+        ]
         if not rivals or gains[best] < ALIAS_MARGIN * max(rivals):
             resolved_peaks = [i for i in gains if frequencies[i] <= cutoff]
             if not resolved_peaks:
@@ -2825,7 +2832,8 @@ def _forward(
                 if not trial.ok:
                     refused[key] = trial.finding.f_statistic
                     state.refused_beside.pop(key, None)
-                if trial.verdict in SPOILED_BY_THE_REST or trial.left or _set_up_too_large(trial):
+                spoiled = trial.verdict in SPOILED_BY_THE_REST or trial.left
+                if spoiled or _set_up_spoiled_by_the_rest(trial):
                     state.refused_beside[key] = beside
                 reason, verdict = trial.reason, trial.verdict
                 if trial.ok and trial is not chosen and chosen is not None:
@@ -4224,26 +4232,31 @@ def _set_up_tied(proposals: list[Finding], batch: list[Finding], strongest: floa
 
 
 def _owed(state: _State, finding: Finding, beside: frozenset[EffectKey]) -> bool:
-    """Whether ``finding`` is owed a refit: refused for what an effect then missing spoils (a
-    size that varied, :data:`SPOILED_BY_THE_REST`, a set-up error too large without its
-    neighbour, :func:`_set_up_too_large`, or a surface's gain on lines it left systematic,
-    :func:`_gained_through_lines_it_leaves`: blind 45093, a surface EX over X×Z refused while a
-    local defect of Z, still missing, left five lines systematic), and another effect kept
-    since. It joins the next
-    step's first batch whatever the diagnosis now says of it: the diagnosis holds the kept
-    effects' nonlinear parameters where they were fitted without it (a drift's τ, fitted while
-    the first line's cosine error was missing, took part of that error; refitted together, τ
-    moves back: indep. 3700091)."""
+    """Whether ``finding`` is owed a refit: refused for what an effect then missing spoils (a size
+    that varied, :data:`SPOILED_BY_THE_REST`, a set-up error too large or short of the margin
+    without its neighbour, :func:`_set_up_spoiled_by_the_rest`, or a surface's gain on lines it left
+    systematic, :func:`_gained_through_lines_it_leaves`: blind 45093, a surface EX over X×Z refused
+    while a local defect of Z, still missing, left five lines systematic), and another effect kept
+    since. It joins the next step's first batch whatever the diagnosis now says of it: the diagnosis
+    holds the kept effects' nonlinear parameters where they were fitted without it (a drift's τ,
+    fitted while the first line's cosine error was missing, took part of that error; refitted
+    together, τ moves back: indep. 3700091)."""
     was = state.refused_beside.get(finding.effect.key)
     return was is not None and was != beside
 
 
-def _set_up_too_large(trial: _Trial) -> bool:
+def _set_up_spoiled_by_the_rest(trial: _Trial) -> bool:
     """Whether ``trial`` refused a set-up effect (Abbe offset, cosine misalignment) as
-    implausible: the machine effect the model still lacks beside it inflates its size as much as
-    its own error does (a surface that tilts the line reads as a longer scale), so it is refitted
-    after another effect is kept, whatever its F statistic."""
-    return trial.verdict == "implausible" and trial.finding.effect.line_index is not None
+    implausible, or as short of the margin: the machine effect the model still lacks beside it
+    inflates its size as much as its own error does (a surface that tilts the line reads as a
+    longer scale), and spoils the held-out lines through which alone a set-up error is confirmed
+    (blind 48121: a cosine error of z_linear_side 2.2 % better beside another line's missing
+    cosine error, 16.7 % once that was kept), so it is refitted after another effect is kept,
+    whatever its F statistic."""
+    return (
+        trial.verdict in ("implausible", "below margin")
+        and trial.finding.effect.line_index is not None
+    )
 
 
 def _distinct(findings: list[Finding]) -> list[Finding]:
