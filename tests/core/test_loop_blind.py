@@ -65,8 +65,9 @@ read the method), for behaviours its suite showed missing:
   whose direction and pair the plan cannot tell, and beside a set-up effect (a cosine error)
   that the same effect on another line fits identically;
 - a drift's time constant placed while a set-up error was still missing is estimated again
-  with that error in the model, and both are kept; a cycle kept at the screw lead moves off it
-  to its own period where the data say so beyond the noise, and a drift beside it is kept;
+  with that error in the model, and both are kept, even one the search had placed at another
+  of its peaks; a cycle kept at the screw lead moves off it to its own period where the data
+  say so beyond the noise, and a drift beside it is kept;
 - the errors' stated uncertainty holds what the plan leaves open beside them: their moves
   across a kept drift's time constant within its uncertainty, and to a basis spacing that
   predicts the lengths better than the one chosen;
@@ -560,6 +561,33 @@ def test_a_drift_is_placed_again_beside_an_offset_it_held_and_both_are_kept() ->
     assert tau == pytest.approx(injected["thermal_drift"]["tau_min"], rel=0.05)
     moves = [s for s in report["loop"] if s["stage"] == "refine" and s["kept"]]
     assert any(s["effect"]["kind"] == "thermal_drift" for s in moves)
+    assert not report["unexplained"], report["unexplained"]
+
+
+def test_a_drift_at_another_peak_of_its_time_constant_is_placed_again_beside_a_set_up() -> None:
+    # demo plan, 0.33 µm noise: a 16 mm cycle of X, a drift of X (τ 35 min) and a cosine error
+    # of diag_xy_pp (-7.25 ppm). τ's search has two peaks; without the cosine error the long
+    # one won (339 min: a line's scale reads as the straight course of a long τ). Held there,
+    # the cosine error predicted the held-out lines 10 % worse; the audit took the drift out
+    # and only the cycle was kept, nine lines reported. Each refit beside a drift now places
+    # its τ again over the whole range, and says so in the row
+    report, truth = _loop(49090)
+    injected = {e["kind"]: e["parameters"] for e in truth["effects"]}
+    assert _kept_places(report) == [
+        ("cosine", "diag_xy_pp"),
+        ("cyclic", "X"),
+        ("thermal_drift", "X"),
+    ]
+    kept = {e["kind"]: e["parameters"] for e in report["effects"]}
+    tau = kept["thermal_drift"]["time_constant_s"] / 60.0
+    assert tau == pytest.approx(injected["thermal_drift"]["tau_min"], rel=0.1)
+    assert kept["cosine"]["scale_ppm"] == pytest.approx(injected["cosine"]["scale_ppm"], abs=0.5)
+    (row,) = [
+        s
+        for s in report["loop"]
+        if s["kept"] and s["stage"] == "forward" and s["effect"]["kind"] == "cosine"
+    ]
+    assert "thermal drift X (time) placed again with it, τ 339 min" in row["reason"], row
     assert not report["unexplained"], report["unexplained"]
 
 
