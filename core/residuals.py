@@ -1052,26 +1052,39 @@ def _search_time_constant(
         effect = make(float(np.exp(log_tau)))
         return diagnosis.tester.test(effect.design(diagnosis.readings, diagnosis.model))[0]
 
-    grid = np.linspace(np.log(low), np.log(high), 10)
-    values = np.array([f_of(g) for g in grid])
-    best = int(np.argmax(values))
+    grid = _TauGrid(f_of, low, high)
     # independent τ over the range: about one per factor e
     trials = max(1, int(np.ceil(np.log(high / low))))
-    guess = make(float(np.exp(grid[best])))
+    guess = make(float(np.exp(grid.best)))
     if not _worth_refining(diagnosis, guess, trials):
         diagnosis.add(guess, trials, f"{where}, τ = {guess.time_constant_s / 60:.3g} min")
         return
-    from scipy.optimize import minimize_scalar
-
-    refined = minimize_scalar(
-        lambda g: -f_of(g),
-        bounds=(grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]),
-        method="bounded",
-        options={"xatol": 1e-3},
-    )
-    log_tau = float(refined.x) if -refined.fun >= values[best] else float(grid[best])
-    tau = float(np.exp(log_tau))
+    tau = float(np.exp(grid.refined()))
     diagnosis.add(make(tau), trials, f"{where}, τ = {tau / 60:.3g} min")
+
+
+class _TauGrid:
+    """A score of log τ on a 10-point grid over ``low`` … ``high`` (s), and its best refined
+    continuously between the grid's neighbours."""
+
+    def __init__(self, score: Callable[[float], float], low: float, high: float) -> None:
+        self.score = score
+        self.grid = np.linspace(np.log(low), np.log(high), 10)
+        self.values = np.array([score(g) for g in self.grid])
+        self.at = int(np.argmax(self.values))
+        self.best = float(self.grid[self.at])
+
+    def refined(self) -> float:
+        from scipy.optimize import minimize_scalar
+
+        at, grid = self.at, self.grid
+        found = minimize_scalar(
+            lambda g: -self.score(g),
+            bounds=(grid[max(at - 1, 0)], grid[min(at + 1, len(grid) - 1)]),
+            method="bounded",
+            options={"xatol": 1e-3},
+        )
+        return float(found.x) if -found.fun >= self.values[at] else self.best
 
 
 #: Widths (1 σ, mm) of the local-defect scan; the best is then refined continuously.
@@ -3007,22 +3020,11 @@ def _drifts_placed_beside(
             moved = replace(effect, time_constant_s=float(np.exp(log_tau)))
             return tester.drop(moved.design(tester.ident.readings, tester.ident.model))
 
-        grid = np.linspace(np.log(low), np.log(high), 10)
-        values = np.array([gain(g) for g in grid])
-        best = int(np.argmax(values))
+        grid = _TauGrid(gain, low, high)
         now = float(np.log(effect.time_constant_s))
-        if abs(grid[best] - now) <= 1.0 or values[best] <= gain(now):
+        if abs(grid.best - now) <= 1.0 or grid.values[grid.at] <= gain(now):
             continue
-        from scipy.optimize import minimize_scalar
-
-        refined = minimize_scalar(
-            lambda g: -gain(g),
-            bounds=(grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]),
-            method="bounded",
-            options={"xatol": 1e-3},
-        )
-        placed = float(refined.x) if -refined.fun >= values[best] else float(grid[best])
-        out[at] = replace(effect, time_constant_s=float(np.exp(placed)))
+        out[at] = replace(effect, time_constant_s=float(np.exp(grid.refined())))
     return out
 
 
