@@ -22,8 +22,11 @@
    Every candidate is scored again at every step against the current model: a real effect that
    ranked second is tried again once the first is in the model. A candidate refused before is
    refitted again only once its evidence has grown (``retry_factor``), or, when it was refused
-   for a size that varied between runs or along a line, once another effect has been kept: what
-   the model lacked spoiled that size as much as the candidate's own misfit could.
+   for a size that varied between runs or along a line, or is a set-up error refused as
+   implausible or short of the margin, once another effect has been kept: what the model lacked
+   spoiled that size, or the held-out lines, as much as the candidate's own misfit could. In
+   each refit of a candidate beside a kept drift in time, the drift's τ is searched again over
+   its whole range with the candidate in the model.
 5. Refine and backward pass: after each keep, every kept cycle's period and drift's τ is
    estimated again with the others in the model (kept when the cross-validated error drops). At
    the end each kept effect is removed in turn; an effect whose removal no longer costs
@@ -104,8 +107,8 @@ class LoopOptions:
         lost with them); set-up effects only ever among the strongest.
     retry_factor : a refused candidate is refitted again once its F statistic has grown by this
         factor (the model around it changed); one refused for a size that varied
-        (:data:`SPOILED_BY_THE_REST`), or a set-up effect refused as implausible, once another
-        effect has been kept.
+        (:data:`SPOILED_BY_THE_REST`), or a set-up effect refused as implausible or short of the
+        margin, once another effect has been kept.
     contender_share : a proposal is refitted in a step's first batch only when the residual sum
         of squares it would remove is at least this share of the strongest proposal's.
     tie : candidates whose cross-validated RMS is within this share of the best are equal; the
@@ -957,15 +960,21 @@ def _search_period(
     gains = {int(i): projected_gain(float(frequencies[i])) for i in candidates}
     best = max(gains, key=lambda i: gains[i])
     if frequencies[best] > cutoff:
-        # the best peak's own harmonics are the same cycle, not an alias that fits as well:
-        # blind 48041, a 15.4 mm cycle of X with a 1.3 µm second harmonic, lost to a 36 mm one
-        rivals = [
-            gains[i]
-            for i in gains
-            if i != best
-            and not any(abs(frequencies[i] - h * frequencies[best]) <= 2.0 / span for h in (2, 3))
-        ]
-        if not rivals or gains[best] < ALIAS_MARGIN * max(rivals):
+        # the best peak's own harmonics are the same cycle, not an alias that fits as well
+        # (blind 48041, a 15.4 mm cycle of X with a 1.3 µm second harmonic, lost to a 36 mm
+        # one), unless a harmonic falls where the targets' spacing aliases the best peak too
+        f = frequencies[best]
+        regular = spacing is not None and np.isfinite(spacing) and spacing > 0
+        aliases = (1.0 / spacing - f, 1.0 / spacing + f) if regular else ()  # type: ignore[operator]
+
+        def harmonic(g: float) -> bool:
+            near = 2.0 / span
+            return any(abs(g - h * f) <= near for h in (2, 3)) and all(
+                abs(g - a) > near for a in aliases
+            )
+
+        rivals = [gains[i] for i in gains if i != best and not harmonic(frequencies[i])]
+        if len(gains) == 1 or (rivals and gains[best] < ALIAS_MARGIN * max(rivals)):
             resolved_peaks = [i for i in gains if frequencies[i] <= cutoff]
             if not resolved_peaks:
                 return None
@@ -2746,8 +2755,8 @@ class _State:
     warnings: list[str] = field(default_factory=list)
     #: F statistic at which a candidate was last refused
     refused: dict[EffectKey, float] = field(default_factory=dict)
-    #: for a candidate last refused for a size that varied (:data:`SPOILED_BY_THE_REST`), the
-    #: effects kept when it was
+    #: for a candidate last refused for what an effect still missing spoils (:func:`_owed`),
+    #: the effects kept when it was
     refused_beside: dict[EffectKey, frozenset[EffectKey]] = field(default_factory=dict)
     #: kept surfaces a rival predicts as well
     ambiguous: dict[EffectKey, list[str]] = field(default_factory=dict)
@@ -2974,8 +2983,7 @@ def _tried(
     effects = _drifts_placed_beside(held, finding.effect, fit, current.model, options)
     trial = _judge(finding, current, cv, *fit(effects, current.model), options, fit)
     moved = [
-        f"{old.label} placed again with it, τ {_searched_value(old)[2:]} → "
-        f"{_searched_value(new)[2:]}"
+        f"{old.label} placed again with it: {_searched_value(old)} → {_searched_value(new)}"
         for old, new in zip(held, effects, strict=True)
         if new is not old
     ]
@@ -2989,9 +2997,11 @@ def _drifts_placed_beside(
     initial: ErrorModel,
     options: LoopOptions,
 ) -> list[Effect]:
-    """``effects`` with each kept drift in time whose τ was searched placed again over the whole
-    range, with ``candidate`` in the model, where the search moves it by more than a factor e
-    (:func:`_refine` moves it within that).
+    """``effects`` with each drift in time placed again, with ``candidate`` in the model, over
+    the range its τ was first searched in (the options' range, up to 20 times the session),
+    where its best lies more than a factor e from the present τ (:func:`_refine` moves it
+    within that) and removes more than the ``alpha`` level of one degree of freedom beyond it.
+    A drift read between two temperature logs keeps its τ.
 
     The time constant is placed against what the model then leaves, and a set-up error still
     missing can lift another peak: a line's cosine error, a scale on the line alone, reads as
@@ -3000,18 +3010,14 @@ def _drifts_placed_beside(
     refit at that τ then predicted the held-out lines 10 % worse; the audit took the drift out
     as not one size on every line, and both stayed unexplained). Held at the old τ, the
     candidate that would move it is judged against a model that cannot be right."""
+    from scipy import stats
+
     out = list(effects)
-    for at, effect in enumerate(effects):
-        if (
-            effect is candidate
-            or not isinstance(effect, ThermalDrift)
-            or effect.mode != "time"
-            or not effect.searched
-        ):
+    for index, effect in enumerate(effects):
+        if effect is candidate or not isinstance(effect, ThermalDrift) or effect.mode != "time":
             continue
-        tester = _Tester(fit.identify([e for e in out if e is not effect], initial))
-        readings = tester.ident.readings
-        duration = float(np.ptp(readings.time_s))
+        tester = _without(effect, out, fit, initial, None)
+        duration = float(np.ptp(tester.ident.readings.time_s))
         low, high = options.time_constants_s[0], min(options.time_constants_s[1], 20.0 * duration)
         if high <= low:
             continue
@@ -3020,11 +3026,14 @@ def _drifts_placed_beside(
             moved = replace(effect, time_constant_s=float(np.exp(log_tau)))
             return tester.drop(moved.design(tester.ident.readings, tester.ident.model))
 
-        grid = _TauGrid(gain, low, high)
         now = float(np.log(effect.time_constant_s))
-        if abs(grid.best - now) <= 1.0 or grid.values[grid.at] <= gain(now):
+        grid = _TauGrid(gain, low, high)
+        if abs(grid.best - now) <= 1.0:
             continue
-        out[at] = replace(effect, time_constant_s=float(np.exp(grid.refined())))
+        placed = grid.refined()
+        if abs(placed - now) <= 1.0 or gain(placed) - gain(now) < stats.chi2.isf(options.alpha, 1):
+            continue
+        out[index] = replace(effect, time_constant_s=float(np.exp(placed)))
     return out
 
 
@@ -3104,9 +3113,11 @@ def _re_placed(
     held = [t for t in tried if t.verdict == "below margin"]
     machine = current.model.machine
     passing: list[tuple[_Trial, Effect, Effect]] = []
+    kept = [e for e in current.effects if isinstance(e, Effect)]
     for trial in held[: options.candidates_per_step]:
-        effects = list(trial.refit.effects)
         candidate = trial.finding.effect
+        # the kept effects as kept, not as the trial's refit may have placed a drift again
+        effects = _with(kept, candidate, machine)
         for effect in effects:
             if effect is candidate or not effect.searched:
                 continue
@@ -3245,7 +3256,8 @@ def _two_lines_set_ups(
         return []
     partners = [f for f in others if f.effect.line_index == others[0].effect.line_index]
     return [
-        (first.finding, f, _with(list(first.refit.effects), f.effect, machine)) for f in partners
+        (first.finding, f, _with(_with(kept, first.finding.effect, machine), f.effect, machine))
+        for f in partners
     ]
 
 
@@ -4313,6 +4325,11 @@ def _owed(state: _State, finding: Finding, beside: frozenset[EffectKey]) -> bool
     return was is not None and was != beside
 
 
+#: Refusals of a set-up effect that what the model still lacks beside it may cause
+#: (:func:`_set_up_spoiled_by_the_rest`).
+SET_UP_SPOILED_BY_THE_REST = ("implausible", "below margin")
+
+
 def _set_up_spoiled_by_the_rest(trial: _Trial) -> bool:
     """Whether ``trial`` refused a set-up effect (Abbe offset, cosine misalignment) as
     implausible, or as short of the margin: the machine effect the model still lacks beside it
@@ -4322,8 +4339,7 @@ def _set_up_spoiled_by_the_rest(trial: _Trial) -> bool:
     cosine error, 16.7 % once that was kept), so it is refitted after another effect is kept,
     whatever its F statistic."""
     return (
-        trial.verdict in ("implausible", "below margin")
-        and trial.finding.effect.line_index is not None
+        trial.verdict in SET_UP_SPOILED_BY_THE_REST and trial.finding.effect.line_index is not None
     )
 
 
@@ -4592,7 +4608,8 @@ def _set_up_for_surface(
                 stage="backward",
             )
         )
-        kept = _with(rest, set_up.effect, current.model.machine)
+        # the refit's own effects: a drift beside it may have been placed again (_tried)
+        kept = [e for e in trial.refit.effects if isinstance(e, Effect)]
         current, cv = trial.refit, trial.cv
     return current, cv, kept
 
@@ -4728,8 +4745,8 @@ def _lowered(
             stage="backward",
         )
     )
-    machine = current.model.machine
-    kept = _with(_with(rest, lower, machine), trial.finding.effect, machine)
+    # the refit's own effects: a drift beside it may have been placed again (_tried)
+    kept = [e for e in trial.refit.effects if isinstance(e, Effect)]
     return trial.refit, trial.cv, kept
 
 

@@ -253,6 +253,15 @@ def test_a_set_up_error_short_of_the_margin_is_refitted_once_another_is_kept() -
     # and was refused; its F statistic never doubled, so it was not refitted again, and
     # z_linear_side stayed unexplained with 1.4 µm. Beside the other cosine error: 16.7 %
     report, truth = _loop(48121)
+    rows = [
+        s
+        for s in report["loop"]
+        if s["effect"]["kind"] == "cosine" and s["effect"]["parameters"]["line"] == "z_linear_side"
+    ]
+    # refused beside the other line's missing error, kept at a later step beside it
+    refused = [s["step"] for s in rows if s["verdict"] == "below margin"]
+    (kept,) = [s["step"] for s in rows if s["kept"]]
+    assert refused and min(refused) < kept, rows
     assert _kept_places(report) == [
         ("cosine", "diag_yz_pm_b"),
         ("cosine", "z_linear_side"),
@@ -587,7 +596,13 @@ def test_a_drift_at_another_peak_of_its_time_constant_is_placed_again_beside_a_s
         for s in report["loop"]
         if s["kept"] and s["stage"] == "forward" and s["effect"]["kind"] == "cosine"
     ]
-    assert "thermal drift X (time) placed again with it, τ 339 min" in row["reason"], row
+    moved = re.search(
+        r"thermal drift X \(time\) placed again with it: τ (\S+) min → τ (\S+) min", row["reason"]
+    )
+    assert moved, row["reason"]
+    before, after = float(moved.group(1)), float(moved.group(2))
+    assert before > np.e * after  # from the other peak, not the refinement's factor e
+    assert after == pytest.approx(injected["thermal_drift"]["tau_min"], rel=0.1)
     assert not report["unexplained"], report["unexplained"]
 
 
