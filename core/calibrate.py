@@ -25,7 +25,7 @@ from .identify import Identification, UncertaintyBudget, parameters_report
 from .kinematics import VolumetricModel
 from .machine import Machine
 from .progress import CancelToken, ProgressCallback, check, report
-from .residuals import BOTH_WAYS, TOGETHER, LoopOptions, LoopResult, close_loop
+from .residuals import BOTH_WAYS, PLACED_AGAIN, TOGETHER, LoopOptions, LoopResult, close_loop
 from .userror import UserError
 
 FloatArray = NDArray[np.float64]
@@ -386,14 +386,21 @@ def summary_table(result: Mapping[str, Any]) -> str:
             f"   {'every line, angular at σ exchange':<{width}} {'':6} {'':6}"
             f"   {judged['before_loop']:6.3f} {judged['after_loop']:6.3f}"
         )
-    # why an effect the table showed kept was taken out again, and why a step kept what did
-    # not predict best there: the loop ran on both ways and that route ended better
+    # why an effect the table showed kept was taken out again, why a step kept what did not
+    # predict best there (the loop ran on both ways and that route ended better), and a kept
+    # drift's time constant a keep moved
     for step, label in zip(result["loop"], labels, strict=True):
+        reason = step.get("reason", "")
         if step.get("stage") in ("backward", "audit") and not step["kept"]:
-            lines.append(f"   step {step['step']}, {label} taken out: {step['reason']}")
-        elif step["kept"] and BOTH_WAYS in step.get("reason", ""):
-            why = step["reason"][step["reason"].index(BOTH_WAYS) :]
-            lines.append(f"   step {step['step']}, {label} kept: {why}")
+            lines.append(f"   step {step['step']}, {label} taken out: {reason}")
+        elif step["kept"] and BOTH_WAYS in reason:
+            lines.append(
+                f"   step {step['step']}, {label} kept: {reason[reason.index(BOTH_WAYS) :]}"
+            )
+        elif step["kept"] and PLACED_AGAIN in reason:
+            start = reason.rfind("; ", 0, reason.index(PLACED_AGAIN))
+            moved = reason[start + 2 :] if start >= 0 else reason
+            lines.append(f"   step {step['step']}, {label} kept: {moved}")
     basis = result.get("basis")
     if basis:
         tried = ", ".join(f"{t['spacing_mm']:g} mm {t['cv_rms_um']:.3f}" for t in basis["tried"])

@@ -2406,6 +2406,9 @@ SET_UP_TIE = 0.99
 TOGETHER = "kept together"
 #: How a step's rows say that the loop ran on from it two ways (:func:`_other_route`).
 BOTH_WAYS = "the loop ran on from this step both ways"
+#: The words a step's row closes with where a kept drift's τ was placed again beside its
+#: candidate (:func:`_tried`); the console prints them under the loop table.
+PLACED_AGAIN = "placed again with it"
 #: A line shows an effect when what the 21 errors cannot absorb of it there reaches 4 σ.
 SHOWN_SIGMA2 = 16.0
 #: As many lines as this disagreeing with the rest are "a few lines" of their own to
@@ -2983,7 +2986,7 @@ def _tried(
     effects = _drifts_placed_beside(held, finding.effect, fit, current.model, options)
     trial = _judge(finding, current, cv, *fit(effects, current.model), options, fit)
     moved = [
-        f"{old.label} placed again with it: {_searched_value(old)} → {_searched_value(new)}"
+        f"{old.label} {PLACED_AGAIN}: {_searched_value(old)} → {_searched_value(new)}"
         for old, new in zip(held, effects, strict=True)
         if new is not old
     ]

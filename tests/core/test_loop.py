@@ -471,6 +471,11 @@ def test_the_console_says_why_an_effect_was_taken_out_and_what_was_kept_together
     result["loop"][0]["reason"] = f"cross-validated RMS 0.22 → 0.17; {both}"
     told = [r for r in summary_table(result).splitlines() if "both ways" in r]
     assert told == [f"   step 1, cosine misalignment of line x_lin kept: {both}"]
+    # a keep that moved a kept drift's time constant says so
+    moved = "thermal drift X (time) placed again with it: τ 339 min → τ 35.86 min"
+    result["loop"][3]["reason"] = f"cross-validated RMS 0.4951 → 0.3929 (20.6 % better); {moved}"
+    told = [r for r in summary_table(result).splitlines() if "placed again" in r]
+    assert told == [f"   step 3, cosine misalignment of line x_lin kept: {moved}"]
 
 
 def test_a_refit_within_its_uncertainty_of_nothing_is_refused_on_its_wald_statistic() -> None:
