@@ -1022,14 +1022,12 @@ def _thermal_candidates(
     logged = bool(np.all(np.isfinite(temp)) and np.ptp(temp) > 0.05)
     if logged:
         diagnosis.add(ThermalDrift(axis, "temperature", reference_mm=ref))
-    duration = float(np.ptp(readings.time_s))
-    if duration <= 0:
+    if np.ptp(readings.time_s) <= 0:
         return
-    # τ well beyond the session makes 1 − exp(−t/τ) a straight line: nothing to tell τ by
     _search_time_constant(
         diagnosis,
         lambda tau: ThermalDrift(axis, "time", tau, ref),
-        (bounds[0], min(bounds[1], 20.0 * duration)),
+        _time_constant_range(bounds, readings),
         f"all lines along {axis}",
     )
     ends_s, ends_c = readings.material_ends_s, readings.material_ends_c
@@ -1043,6 +1041,12 @@ def _thermal_candidates(
             (bounds[0], min(bounds[1], 20.0 * longest)),
             f"all lines along {axis}, temperature between the logs",
         )
+
+
+def _time_constant_range(bounds: tuple[float, float], readings: Readings) -> tuple[float, float]:
+    """The range (s) a drift in time's τ is searched in: ``bounds``, up to 20 times the session
+    (τ well beyond it makes 1 − exp(−t/τ) a straight line: nothing to tell τ by)."""
+    return bounds[0], min(bounds[1], 20.0 * float(np.ptp(readings.time_s)))
 
 
 def _search_time_constant(
@@ -3001,7 +3005,7 @@ def _drifts_placed_beside(
     options: LoopOptions,
 ) -> list[Effect]:
     """``effects`` with each drift in time placed again, with ``candidate`` in the model, over
-    the range its τ was first searched in (the options' range, up to 20 times the session),
+    the range its τ was first searched in (:func:`_time_constant_range`),
     where its best lies more than a factor e from the present τ (:func:`_refine` moves it
     within that) and removes more than the ``alpha`` level of one degree of freedom beyond it.
     A drift read between two temperature logs keeps its τ.
@@ -3020,8 +3024,7 @@ def _drifts_placed_beside(
         if effect is candidate or not isinstance(effect, ThermalDrift) or effect.mode != "time":
             continue
         tester = _without(effect, out, fit, initial, None)
-        duration = float(np.ptp(tester.ident.readings.time_s))
-        low, high = options.time_constants_s[0], min(options.time_constants_s[1], 20.0 * duration)
+        low, high = _time_constant_range(options.time_constants_s, tester.ident.readings)
         if high <= low:
             continue
 
