@@ -1360,10 +1360,14 @@ def _unexplained_by_line(
     For each line and target the mean residual over runs is compared with σ/√runs (a χ² test
     over the targets for a structure spread along the line, and the largest target mean,
     Bonferroni over the targets, for one a few targets wide; Bonferroni over the lines) on the
-    fit's residual; so is the spread of the run means about their line's trend in time (a drift
-    the runs disagree by). A significant line is
-    reported with where its largest systematic residual sits, how large it is, and the shares of
-    its residual that follow the target position, the approach direction and time. With a
+    fit's residual; so are the differences between the approach directions at the targets
+    (:func:`_direction_p_value`: a reversal the model lacks, or an error changing in time read
+    forward and backward at different times, leaves the targets' means flat) and the spread of
+    the run means about their line's trend in time (a drift the runs disagree by). A
+    significant line is reported with where its largest systematic residual sits (for one that
+    follows the approach direction, where forward less backward is largest, and that
+    difference), how large it is, and the shares of its residual that follow the target
+    position, the approach direction and time. With a
     cross-validation, place and size come from its held-out residuals: a structure on one line is
     then sized as that line shows it, not as what is left after the fit bent the model towards it.
     """
@@ -1390,18 +1394,35 @@ def _unexplained_by_line(
         unit = _unit(line.spec)
         magnitude = float(np.max(np.abs(means)))
         rms = float(np.sqrt(np.mean(means**2)))
+        peak = f"peak {magnitude:.3g} {unit} at {position:.1f} mm"
         follows = max(shares, key=lambda key: shares[key])
-        if test.p_time * count * 2 < alpha and test.p_position * count * 2 >= alpha:
+        significant = {
+            name: p * count * 2 < alpha
+            for name, p in (
+                ("position", test.p_position),
+                ("direction", test.p_direction),
+                ("time", test.p_time),
+            )
+        }
+        if significant["direction"] and (follows == "direction" or not significant["position"]):
+            # a difference between the approach directions: sized and placed by it
+            follows = "direction"
+            at, difference = _direction_peak(readings, held_out, index)
+            position = float(line.data.targets_mm[at])
+            magnitude = abs(difference)
+            peak = f"forward − backward {difference:+.3g} {unit} at {position:.1f} mm"
+        elif significant["time"] and not significant["position"]:
             # nothing locked to position: size it by the spread of the runs instead
             magnitude = float(np.sqrt(np.mean(test.residual**2)))
+            peak = f"peak {magnitude:.3g} {unit} at {position:.1f} mm"
             follows = "time"
         reported.add(index)
         item = Unexplained(
             where=f"line {line.name} at {position:.1f} mm",
             description=(
                 f"systematic residual on {line.spec.quantity} line {line.name}: RMS "
-                f"{rms:.3g} {unit} over its targets, peak {magnitude:.3g} {unit} at "
-                f"{position:.1f} mm, beyond its repeatability ({test.sigma:.3g} {unit}); it "
+                f"{rms:.3g} {unit} over its targets, {peak}, beyond its repeatability "
+                f"({test.sigma:.3g} {unit}); it "
                 f"follows mostly {_FOLLOWS[follows]} (position {shares['position']:.0%}, "
                 f"direction {shares['direction']:.0%}, time {shares['time']:.0%} of it); no "
                 "effect of the catalogue explains it"
@@ -1428,6 +1449,9 @@ class _LineTest(NamedTuple):
     p_position: float
     #: false-alarm level of a drift in time within the line (:func:`_time_p_value`)
     p_time: float
+    #: false-alarm level of a difference between the approach directions at the targets
+    #: (:func:`_direction_p_value`)
+    p_direction: float
     #: the line's repeatability (its readings' σ)
     sigma: float
     #: the line's residual
@@ -1439,8 +1463,10 @@ class _LineTest(NamedTuple):
 def _line_test(readings: Readings, residual: FloatArray, index: int) -> _LineTest:
     """Whether line ``index``'s ``residual`` is larger than its repeatability allows: the mean
     residual over runs at each target against σ/√runs (a χ² over the targets for a structure
-    spread along the line, the largest target mean for one a few targets wide that χ² dilutes)
-    and the spread of the run means about the line's trend in time. Each test's level for one
+    spread along the line, the largest target mean for one a few targets wide that χ² dilutes),
+    the difference between the approach directions at each target
+    (:func:`_direction_p_value`) and the spread of the run means about the line's trend in
+    time. Each test's level for one
     line, before any correction for the number of lines tested."""
     from scipy import special
 
@@ -1456,7 +1482,50 @@ def _line_test(readings: Readings, residual: FloatArray, index: int) -> _LineTes
     p_spread = float(special.chdtrc(int(valid.sum()), float(np.sum(z**2))))
     p_peak = float(valid.sum() * special.erfc(np.max(np.abs(z)) / np.sqrt(2)))
     p_time = _time_p_value(readings, residual, index, sigma)
-    return _LineTest(min(p_spread, p_peak), p_time, sigma, r, (n, valid))
+    p_direction = _direction_p_value(readings, r, index, sigma)
+    return _LineTest(min(p_spread, p_peak), p_time, p_direction, sigma, r, (n, valid))
+
+
+def _direction_peak(readings: Readings, residual: FloatArray, index: int) -> tuple[int, float]:
+    """The target of line ``index`` read both ways where the mean ``residual`` forward less the
+    mean backward is largest, and that difference."""
+    mask = readings.line == index
+    key = _cell_key(readings, index)
+    k = int(key.max()) // 2 + 1
+    counts = np.bincount(key, minlength=2 * k).reshape(k, 2)
+    sums = np.bincount(key, weights=residual[mask], minlength=2 * k).reshape(k, 2)
+    both = (counts > 0).all(axis=1)
+    difference = np.where(both, sums[:, 1] / np.maximum(counts[:, 1], 1), 0.0) - np.where(
+        both, sums[:, 0] / np.maximum(counts[:, 0], 1), 0.0
+    )
+    at = int(np.argmax(np.abs(difference)))
+    return at, float(difference[at])
+
+
+def _direction_p_value(readings: Readings, r: FloatArray, index: int, sigma: float) -> float:
+    """False-alarm level of a difference between a line's two approach directions in its
+    residual ``r``: the mean forward minus the mean backward at each target read both ways,
+    against σ·√(1/n↑ + 1/n↓), as an F test over those targets and as their largest (Student's t,
+    Bonferroni over the targets). σ is the line's repeatability, estimated from the spread of
+    the same cells' readings (:func:`~volucal.core.readings.repeatability`), hence F and t
+    rather than χ² and the normal law: a line whose σ reads low by chance does not pass for
+    one whose directions differ. The targets' means pool both directions: a reversal the model
+    lacks, or an error changing in time read forward and backward at different times, leaves
+    them flat."""
+    key = _cell_key(readings, index)
+    k = int(key.max()) // 2 + 1
+    counts = np.bincount(key, minlength=2 * k).reshape(k, 2)
+    sums = np.bincount(key, weights=r, minlength=2 * k).reshape(k, 2)
+    both = (counts > 0).all(axis=1)
+    dof = key.size - int(np.count_nonzero(counts))
+    if not both.any() or dof <= 0:
+        return 1.0
+    n = counts[both]
+    difference = sums[both, 1] / n[:, 1] - sums[both, 0] / n[:, 0]
+    z = difference / (sigma * np.sqrt(1.0 / n[:, 0] + 1.0 / n[:, 1]))
+    p_spread = float(special.fdtrc(z.size, dof, float(np.mean(z**2))))
+    p_peak = float(z.size * 2.0 * special.stdtr(dof, -float(np.max(np.abs(z)))))
+    return min(p_spread, p_peak, 1.0)
 
 
 class _Wander(NamedTuple):
@@ -2009,6 +2078,10 @@ def _judge(
         uneven = _uneven(sizes.along_line(), options)
         if uneven is not None:
             return refused(uneven, "uneven along its line")
+    if isinstance(effect, Reversal) and fit is not None:
+        uneven = _reversal_uneven(effect, current, refit, fit, options)
+        if uneven is not None:
+            return refused(uneven, "uneven along its line")
     if effect.kind in ("cross_axis", "higher_order") and fit is not None:
         per_line = _held_out_gain(tester, cv, cv_new, rows)
         carried = _gained_through_lines_it_leaves(effect, current, refit, per_line, fit)
@@ -2036,10 +2109,11 @@ def _widespread(systematic: list[int], count: int) -> bool:
 
 def _systematic(test: _LineTest, lines: int, alpha: float) -> bool:
     """Whether a line's tests (:func:`_line_test`) find it beyond its repeatability, as
-    :func:`unexplained` reports a line: each test held to ``alpha``, Bonferroni over the
-    ``lines`` and the two tests (position, time), so that the three tests' family-wise
-    false-alarm level is at most 1.5 ``alpha``."""
-    return min(test.p_position, test.p_time) * lines * 2 < alpha
+    :func:`unexplained` reports a line: each of the three (position, approach direction, time)
+    held to ``alpha`` / 2, Bonferroni over the ``lines``; the position and direction tests are
+    each the smaller of two levels (a χ² and a peak), so that the five tests' family-wise
+    false-alarm level is at most 2.5 ``alpha``."""
+    return min(test.p_position, test.p_direction, test.p_time) * lines * 2 < alpha
 
 
 def _gained_through_lines_it_leaves(
@@ -2702,6 +2776,56 @@ def _uneven(change: _Change, options: LoopOptions) -> str | None:
         f"uneven along its line: fitted block by block of {BLOCK_MM:g} mm of targets",
         "a set-up's scale or lever arm has one size along the line, so it took structure at one "
         "place of it: refused",
+    )
+
+
+def _reversal_uneven(
+    effect: Reversal,
+    current: Identification,
+    refit: Identification,
+    fit: _Fitter,
+    options: LoopOptions,
+) -> str | None:
+    """Why a reversal is refused for a size that changes along its lines beyond what one that
+    varies linearly over the stroke describes.
+
+    Backlash is a step between the two approach directions at every target of a line, however
+    long the machine took between the two readings: the catalogue lets it change linearly over
+    the stroke, no more. An error that changes in time, read forward and backward at different
+    times, leaves a difference between the directions that follows the time between the two
+    readings instead: nothing at the turnaround, most where the runs are furthest apart in time
+    (blind 49199: a Y error periodic in time, 264 s, kept as a 3.4 µm reversal of Y whose
+    forward − backward difference fell to nothing at both ends of every Y line). A constant
+    reversal that fails is judged again as the linear one the next step would propose: a
+    linear change alone is no reason to refuse it.
+
+    Only the lines that move the axis are split: on the others the axis stands still, its
+    reversal a constant the line's zero takes, and that constant cut into blocks would fit
+    whatever the line still lacks (blind 6176: a straightness line along Z, its missing Abbe
+    term read as the reversal of Y changing twentyfold and sign along it)."""
+
+    def change_along(fitted: Identification, reversal: Reversal) -> _Change:
+        index = list(fitted.effects).index(reversal)
+        readings = fitted.readings
+        k = AXIS_INDEX[reversal.axis_name]
+        moves = np.array([abs(line.spec.direction[k]) > 1e-9 for line in readings.lines])
+        contribution = reversal.design(readings, fitted.model) @ fitted.effect_parameters[index]
+        return _Sizes(fitted, index, np.where(moves[readings.line], contribution, 0.0)).along_line()
+
+    change = change_along(refit, effect)
+    if effect.order == 0 and _uneven(change, options) is not None:
+        linear = Reversal(effect.axis_name, 1, effect.stroke_mm)
+        effects = [linear if e is effect else e for e in refit.effects]
+        change = change_along(fit.identify(effects, current.model), linear)  # type: ignore[arg-type]
+    return _beyond(
+        change,
+        options.repeatability_spread,
+        options,
+        f"uneven along its lines: fitted block by block of {BLOCK_MM:g} mm of targets"
+        + (", let change linearly over the stroke" if effect.order == 0 else ""),
+        "backlash is one step between the approach directions at every target, whatever the "
+        "time between the two readings; a difference that changes along the line is what an "
+        "error changing in time leaves between readings taken at different times: refused",
     )
 
 

@@ -319,6 +319,35 @@ def test_a_line_that_repeats_worse_than_its_peers_is_reported_from_run_to_run() 
     ]
 
 
+def test_a_difference_between_the_directions_of_one_line_is_reported_and_sized() -> None:
+    """A line whose readings differ between the approach directions by 0.6 µm (6× the noise),
+    the same at every target, but no other line moving its axis shows it: its optics, not the
+    machine (a reversal needs a second line). The targets' means pool both directions and stay
+    flat; the direction test reports the line, placed and sized by forward less backward."""
+    truth = sim.random_truth(seed=15)
+    vm = sim.VirtualMachine(
+        truth, (), seed=15, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
+    )
+    measurement = vm.measure(plans.layout("full", truth.machine, STEP_MM, JITTER_MM))
+    assert close_loop(measurement).to_report()["unexplained"] == []
+    name = next(line.name for line in measurement.lines if line.spec.quantity == "linear")
+    lines = []
+    for line in measurement.lines:
+        if line.name == name:
+            step = 0.3 * line.data.run_direction[:, None] * np.ones_like(line.data.deviations)
+            line = Line(line.spec, replace(line.data, deviations=line.data.deviations + step))
+        lines.append(line)
+    report = close_loop(Measurement(measurement.machine, tuple(lines))).to_report()
+    assert report["effects"] == []
+    (found,) = report["unexplained"]
+    assert found["where"].startswith(f"line {name} at ")
+    assert "forward − backward +" in found["description"]
+    assert "follows mostly the approach direction" in found["description"]
+    # the largest of ~40 target differences, each within σ·√(2/5) = 0.063 µm of 0.6
+    assert found["magnitude_um"] == pytest.approx(0.6, abs=0.2)
+    assert found["correlates_with"]["direction"] > 0.8
+
+
 def test_an_error_periodic_in_time_along_one_axis_is_reported_on_every_line_that_moves_it() -> None:
     """An X error periodic in time spoils the spread of every linear line that moves X, most
     lines of the plan: each is reported, most as unsteady against the plan's steadiest lines

@@ -153,6 +153,29 @@ def test_a_set_up_of_a_line_that_wanders_is_not_kept() -> None:
     assert "line diag_yz_pp, from run to run" in [u["where"] for u in report["unexplained"]]
 
 
+def test_an_error_periodic_in_time_is_not_kept_as_a_reversal() -> None:
+    # twelve-line plan, 0.32 µm noise: a 2.3 µm Y error periodic in time (264 s). Read forward
+    # and backward at different times, it leaves a difference between the approach directions
+    # on every Y line: nothing at both ends, 3.5 µm at mid-stroke. A constant reversal of Y took
+    # 9.6 % of the held-out error and its size, fitted line by line, differed only 17 %
+    report, truth = _loop(49199)
+    (effect,) = truth["effects"]
+    assert (effect["kind"], effect["axis"]) == ("outside:time_periodic", "Y")
+    assert report["effects"] == []
+    (refusal,) = [s for s in report["loop"] if s["effect"]["kind"] == "reversal"]
+    assert refusal["effect"]["axis"] == "Y"
+    assert refusal["verdict"] == "uneven along its line", refusal
+    assert "let change linearly over the stroke" in refusal["reason"]
+    # every Y line reported, placed and sized by forward less backward (the hump's top); the
+    # targets' means pool both directions, and y_lin_1 was not reported at all
+    on_y = {u["where"].split()[1]: u for u in report["unexplained"] if " y_lin_" in u["where"]}
+    assert sorted(on_y) == ["y_lin_1", "y_lin_2", "y_lin_3"], report["unexplained"]
+    for u in on_y.values():
+        assert "follows mostly the approach direction" in u["description"], u
+        assert "forward − backward" in u["description"]
+        assert 2.5 < u["magnitude_um"] < 5.0, u
+
+
 @pytest.mark.parametrize("seed", [1005, 1067, 5028])
 def test_a_scale_oscillating_in_time_is_not_kept_as_a_surface_or_a_drift(seed: int) -> None:
     # 1005, 1067: a surface fits some lines at twice its size and others at none; 5028
@@ -723,7 +746,13 @@ def test_an_abbe_offset_a_surface_fits_as_well_on_its_one_line_is_kept_not_the_s
     # errors take: 62 of the 71 mm injected are fitted
     injected = np.array(offset["parameters"]["offset_mm"])
     assert np.linalg.norm(np.array(kept["offset_mm"]) - injected) <= 0.2 * np.linalg.norm(injected)
-    assert not report["unexplained"], report["unexplained"]
+    # the reversal of Z changes from 2.35 to 2.14 µm over the stroke; the position-dependent
+    # one earns 0.6 % held out (margin 3 %), so the constant one is kept and z_linear is reported
+    # for what that leaves between its directions, no more
+    for item in report["unexplained"]:
+        assert item["where"].startswith("line z_linear at "), report["unexplained"]
+        assert "follows mostly the approach direction" in item["description"]
+        assert item["magnitude_um"] < 0.25
     (entry,) = [e for e in report["effects"] if e["kind"] == "abbe_offset"]
     assert {r["kind"] for r in entry["rivals"]["effects"]} == {"cross_axis"}
     assert any(
