@@ -176,6 +176,17 @@ def test_an_error_periodic_in_time_is_not_kept_as_a_reversal() -> None:
         assert 2.5 < u["magnitude_um"] < 5.0, u
 
 
+def test_lines_a_reversal_leaves_between_its_directions_do_not_take_a_surface_out() -> None:
+    # direct plan, 0.19 µm noise: a surface EX over X×Z, a bump of Y in X and a reversal of X
+    # that changes along the stroke, kept constant. What that leaves between x_linear's and
+    # diag_xz_pp's directions is reported on them; held against the surface as lines it leaves
+    # systematic, it had the audit take the surface out (a difference between the directions is
+    # no shape a surface could take)
+    outcome = run_blind(48142)
+    assert outcome.kept == outcome.expected
+    assert ("cross_axis", "X over X×Z") in outcome.kept
+
+
 @pytest.mark.parametrize("seed", [1005, 1067, 5028])
 def test_a_scale_oscillating_in_time_is_not_kept_as_a_surface_or_a_drift(seed: int) -> None:
     # 1005, 1067: a surface fits some lines at twice its size and others at none; 5028
