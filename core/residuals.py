@@ -1397,7 +1397,7 @@ def _unexplained_by_line(
         unit = _unit(line.spec)
         magnitude = float(np.max(np.abs(means)))
         rms = float(np.sqrt(np.mean(means**2)))
-        peak = f"peak {magnitude:.3g} {unit} at {position:.1f} mm"
+        peak = None
         follows = max(shares, key=lambda key: shares[key])
         significant = {
             name: p * count * 2 < alpha
@@ -1413,19 +1413,19 @@ def _unexplained_by_line(
             at, difference = _direction_peak(readings, held_out, index)
             position = float(line.data.targets_mm[at])
             magnitude = abs(difference)
-            peak = f"forward − backward {difference:+.3g} {unit} at {position:.1f} mm"
+            peak = f"forward − backward {difference:+.3g}"
         elif significant["time"] and not significant["position"]:
             # nothing locked to position: size it by the spread of the runs instead
             magnitude = float(np.sqrt(np.mean(test.residual**2)))
-            peak = f"peak {magnitude:.3g} {unit} at {position:.1f} mm"
             follows = "time"
+        peak = peak or f"peak {magnitude:.3g}"
         reported.add(index)
         item = Unexplained(
             where=f"line {line.name} at {position:.1f} mm",
             description=(
                 f"systematic residual on {line.spec.quantity} line {line.name}: RMS "
-                f"{rms:.3g} {unit} over its targets, {peak}, beyond its repeatability "
-                f"({test.sigma:.3g} {unit}); it "
+                f"{rms:.3g} {unit} over its targets, {peak} {unit} at {position:.1f} mm, beyond "
+                f"its repeatability ({test.sigma:.3g} {unit}); it "
                 f"follows mostly {_FOLLOWS[follows]} (position {shares['position']:.0%}, "
                 f"direction {shares['direction']:.0%}, time {shares['time']:.0%} of it); no "
                 "effect of the catalogue explains it"
@@ -1489,18 +1489,23 @@ def _line_test(readings: Readings, residual: FloatArray, index: int) -> _LineTes
     return _LineTest(min(p_spread, p_peak), p_time, p_direction, sigma, r, (n, valid))
 
 
-def _direction_peak(readings: Readings, residual: FloatArray, index: int) -> tuple[int, float]:
-    """The target of line ``index`` read both ways where the mean ``residual`` forward less the
-    mean backward is largest, and that difference."""
-    mask = readings.line == index
+def _direction_means(
+    readings: Readings, residual: FloatArray, index: int
+) -> tuple[IntArray, FloatArray]:
+    """Line ``index``'s readings and mean ``residual`` (over its readings of the line) per
+    target (rows) and approach direction (columns: backward, forward); 0 where none."""
     key = _cell_key(readings, index)
     k = int(key.max()) // 2 + 1
     counts = np.bincount(key, minlength=2 * k).reshape(k, 2)
-    sums = np.bincount(key, weights=residual[mask], minlength=2 * k).reshape(k, 2)
-    both = (counts > 0).all(axis=1)
-    difference = np.where(both, sums[:, 1] / np.maximum(counts[:, 1], 1), 0.0) - np.where(
-        both, sums[:, 0] / np.maximum(counts[:, 0], 1), 0.0
-    )
+    sums = np.bincount(key, weights=residual, minlength=2 * k).reshape(k, 2)
+    return counts, sums / np.maximum(counts, 1)
+
+
+def _direction_peak(readings: Readings, residual: FloatArray, index: int) -> tuple[int, float]:
+    """The target of line ``index`` read both ways where the mean ``residual`` forward less the
+    mean backward is largest, and that difference."""
+    counts, means = _direction_means(readings, residual[readings.line == index], index)
+    difference = np.where((counts > 0).all(axis=1), means[:, 1] - means[:, 0], 0.0)
     at = int(np.argmax(np.abs(difference)))
     return at, float(difference[at])
 
@@ -1515,16 +1520,13 @@ def _direction_p_value(readings: Readings, r: FloatArray, index: int, sigma: flo
     one whose directions differ. The targets' means pool both directions: a reversal the model
     lacks, or an error changing in time read forward and backward at different times, leaves
     them flat."""
-    key = _cell_key(readings, index)
-    k = int(key.max()) // 2 + 1
-    counts = np.bincount(key, minlength=2 * k).reshape(k, 2)
-    sums = np.bincount(key, weights=r, minlength=2 * k).reshape(k, 2)
+    counts, means = _direction_means(readings, r, index)
     both = (counts > 0).all(axis=1)
-    dof = key.size - int(np.count_nonzero(counts))
+    dof = int(counts.sum()) - int(np.count_nonzero(counts))
     if not both.any() or dof <= 0:
         return 1.0
     n = counts[both]
-    difference = sums[both, 1] / n[:, 1] - sums[both, 0] / n[:, 0]
+    difference = means[both, 1] - means[both, 0]
     z = difference / (sigma * np.sqrt(1.0 / n[:, 0] + 1.0 / n[:, 1]))
     p_spread = float(special.fdtrc(z.size, dof, float(np.mean(z**2))))
     p_peak = float(z.size * 2.0 * special.stdtr(dof, -float(np.max(np.abs(z)))))
