@@ -155,6 +155,7 @@ class Reversal(Effect):
         out: dict[str, object] = {"value_um": float(values[0]), "value_std_um": _std(covariance)}
         if self.order:
             out["slope_um_per_stroke"] = float(2 * values[1])
+            out["slope_std_um_per_stroke"] = 2 * _std(covariance, 1)
         return out
 
     def magnitude_um(self, values: FloatArray) -> float:
