@@ -1999,7 +1999,7 @@ def _judge(
     rows, wild = _rows_compared(cv, cv_new, current, refit)
     before = _rms(cv.residual, current.readings, rows)
     after = _rms(cv_new.residual, current.readings, rows)
-    improvement = 1.0 - after / before if before > 0 else 0.0
+    improvement = _gain(before, after)
     reason = f"cross-validated RMS {before:.4g} → {after:.4g} ({100 * improvement:.1f} % better)"
     if wild:
         held = "blocks" if cv.method.startswith("held-out blocks") else "lines"
@@ -2048,14 +2048,15 @@ def _judge(
         if unsteady is not None:
             return refused(unsteady, "not repeatable")
     if improvement < options.margin:
-        local = _where_a_variant_acts(effect, current, rows)
+        local = _where_a_variant_acts(effect, current, rows) if improvement > 0 else None
         gained = 0.0
         if local is not None:
-            local_before = _rms(cv.residual, current.readings, local[0])
-            local_after = _rms(cv_new.residual, current.readings, local[0])
-            gained = 1.0 - local_after / local_before if local_before > 0 else 0.0
+            acts, where = local
+            local_before = _rms(cv.residual, current.readings, acts)
+            local_after = _rms(cv_new.residual, current.readings, acts)
+            gained = _gain(local_before, local_after)
             reason += (
-                f"; over the {local[1]}: {local_before:.4g} → {local_after:.4g} "
+                f"; over the {where}: {local_before:.4g} → {local_after:.4g} "
                 f"({100 * gained:.1f} % better)"
             )
         if gained < options.margin:
@@ -2108,19 +2109,26 @@ def _judge(
     return _Trial(finding, refit, cv_new, True, reason, parameters, score=after, rows=rows)
 
 
+def _gain(before: float, after: float) -> float:
+    """The relative improvement of an RMS from ``before`` to ``after`` (0 without a before)."""
+    return 1.0 - after / before if before > 0 else 0.0
+
+
 def _where_a_variant_acts(
     effect: Effect, current: Identification, rows: NDArray[np.bool_]
 ) -> tuple[NDArray[np.bool_], str] | None:
     """For a reversal that varies over the stroke, where the model holds the constant one: the
-    readings of ``rows`` on the lines that move its axis, the only ones the slope it adds acts
-    on, and what they are. The margin is then asked over them (:func:`_judge`).
+    displacement readings of ``rows`` on the lines that move its axis, the only ones the slope
+    it adds acts on, and what they are. The margin may then be earned over them
+    (:func:`_judge`), once it betters the plan's error at all.
 
     Asked over the whole plan, the slope of one axis' reversal is diluted by every line that
     cannot see it: blind 50073, a reversal of Z from −1.81 to −2.33 µm over the stroke at
     0.13 µm noise, kept constant, its slope 2.0 % better held out over the twelve lines and
-    refused, while the four lines moving Z were reported unexplained for the 0.37 µm between
-    their directions at the stroke's ends. None for any other candidate: the leaner variant is
-    not in the model, or the effect acts over the plan."""
+    refused, while four of the five lines moving Z were reported unexplained for the 0.37 µm
+    between their directions at the stroke's ends. None for any other candidate (the constant
+    reversal itself is a new effect, asked over the plan as any), and where no reading of
+    ``rows`` is left."""
     if not isinstance(effect, Reversal) or effect.order == 0:
         return None
     if not any(
@@ -2131,8 +2139,10 @@ def _where_a_variant_acts(
     readings = current.readings
     moves = _lines_moving(readings, effect.axis_name)[readings.line]
     # on a line that holds the axis still, the slope is a constant the line's zero takes
-    acts = np.any(effect.design(readings, current.model) != 0.0, axis=1)
-    return rows & moves & acts, f"lines that move {effect.axis}, the only ones its slope acts on"
+    acts = rows & moves & np.any(effect.design(readings, current.model) != 0.0, axis=1)
+    if not acts.any():
+        return None
+    return acts, f"lines that move {effect.axis}, the only ones its slope acts on"
 
 
 def _lines_moving(readings: Readings, axis: str) -> NDArray[np.bool_]:
@@ -3097,12 +3107,20 @@ def _forward(
                     extra.append(_tried(finding, fit, kept, current, cv, options))
                     if extra[-1].verdict != "implausible":
                         break
-            for finding in _untried_lines(findings, tried_this_step, chosen, options):
-                extra.append(_tried(finding, fit, kept, current, cv, options))
-            if extra:
-                at = tried_this_step.index(chosen)
-                tried_this_step = _on_common_rows(tried_this_step + extra)
+            lines = [
+                _tried(finding, fit, kept, current, cv, options)
+                for finding in _untried_lines(findings, tried_this_step, chosen, options)
+            ]
+            if extra or lines:
+                at, ranked = tried_this_step.index(chosen), len(tried_this_step) + len(extra)
+                tried_this_step = _on_common_rows(tried_this_step + extra + lines)
                 chosen = tried_this_step[at]
+                # other lines' set-up errors are named where they fit as well, not where they
+                # predict better: no refit of the step ranked them against the kept one
+                better = chosen.score * (1.0 - options.tie)
+                tried_this_step = tried_this_step[:ranked] + [
+                    t for t in tried_this_step[ranked:] if t.score >= better
+                ]
             _doubts(state, chosen, tried_this_step, options)
         effect = chosen.finding.effect
         if chosen.finding.alias_mm:
@@ -3375,6 +3393,10 @@ def _untried_places(
 #: error of another line (:func:`_untried_lines`).
 RIVAL_GAIN_SHARE = 0.95
 
+#: At most this many set-up errors of other lines are refitted as a kept one's possible rivals
+#: (:func:`_untried_lines`).
+SET_UP_RIVALS = 8
+
 
 def _untried_lines(
     findings: list[Finding], tried: list[_Trial], chosen: _Trial, options: LoopOptions
@@ -3400,11 +3422,6 @@ def _untried_lines(
         and finding.log10_false_alarm < np.log10(options.alpha)
         and finding.gain >= RIVAL_GAIN_SHARE * chosen.finding.gain
     ][:SET_UP_RIVALS]
-
-
-#: At most this many set-up errors of other lines are refitted as a kept one's possible rivals
-#: (:func:`_untried_lines`).
-SET_UP_RIVALS = 8
 
 
 def _set_up_pairs(

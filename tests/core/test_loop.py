@@ -59,6 +59,8 @@ def test_reversal_is_found_and_sized() -> None:
     _, report = _run((sim.Reversal("Y", 3.0),))
     assert _kept(report, "reversal", "Y")["value_um"] == pytest.approx(3.0, rel=0.2)
     _only(report, "reversal")
+    # a constant reversal stays constant: no slope earns the margin over the lines moving Y
+    assert [e["label"] for e in report["effects"]] == ["reversal Y"]
     _clean(report)
 
 
