@@ -185,7 +185,8 @@ def calibrate(
         # what the plan can see, with the redundant-line analysis, is the base fit's
         "identifiability": loop.base.identifiability.to_json(),
         "sign_conventions": sorted({line.sign_convention for line in imported.lines}),
-        "outlier_flags": [str(f) for f in imported.flags],
+        "outlier_flags": [f"line {f.line}: {f.reason}" for f in imported.flags],
+        "outliers_dropped": imported.outliers_dropped,
     }
     result["volumetric_error_um"] = volumetric_summary(source)
     result |= loop.to_report()
@@ -341,6 +342,10 @@ def _jsonable(value: Any) -> Any:
     return value
 
 
+#: The console lists at most this many outlier flags; report.json holds them all.
+OUTLIERS_LISTED = 10
+
+
 def summary_table(result: Mapping[str, Any]) -> str:
     """The before/after table the CLI prints."""
     lines = []
@@ -349,6 +354,17 @@ def summary_table(result: Mapping[str, Any]) -> str:
     lines.append(f"identifiability: rank {ident['rank']} of {ident['unknowns']} unknowns")
     for text in ident["unidentifiable"]:
         lines.append(f"  not identified: {text}")
+    flags = result.get("outlier_flags", [])
+    if flags:
+        how = (
+            "set to missing (--drop-outliers)"
+            if result.get("outliers_dropped")
+            else "kept in the fit (--drop-outliers leaves them out)"
+        )
+        lines.append(f"{len(flags)} outlier flag(s) at import, {how}:")
+        lines += [f"  {text}" for text in flags[:OUTLIERS_LISTED]]
+        if len(flags) > OUTLIERS_LISTED:
+            lines.append(f"  … and {len(flags) - OUTLIERS_LISTED} more (report.json outlier_flags)")
     volumetric = result.get("volumetric_error_um")
     if volumetric:
         cells = ", ".join(

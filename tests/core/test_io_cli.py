@@ -50,15 +50,22 @@ def test_import_creates_then_adds(plan, tmp_path, capsys):
     assert line["runs"] == 2 and line["targets"] == 4 and line["format"] == "table"
 
 
-def test_import_reports_and_drops_outliers(plan, tmp_path, capsys):
+def _with_an_outlier(plan: Path) -> np.ndarray:
+    """Write the plan's x_y0_z0 log anew with one reading (run 3, target 5 at 200 mm) 9 µm off
+    the other runs; return its deviations."""
     rng = np.random.default_rng(8)
     runs, count = 10, 9
     direction = np.tile([1, -1], runs // 2)
     deviations = np.round(rng.normal(0, 0.2, (runs, count)), 4)
     deviations[2, 4] += 9.0
-    write_rtl(plan.parent / "x_axis_hand.rtl",
-              LineData(np.linspace(0, 400, count), deviations, direction,
-                       reading_times(runs, count, 900.0, direction), start_time=1.7e9))
+    times = reading_times(runs, count, 900.0, direction)
+    data = LineData(np.linspace(0, 400, count), deviations, direction, times, start_time=1.7e9)
+    write_rtl(plan.parent / "x_axis_hand.rtl", data)
+    return deviations
+
+
+def test_import_reports_and_drops_outliers(plan, tmp_path, capsys):
+    deviations = _with_an_outlier(plan)
     assert main(["import", str(tmp_path / "a.h5"), str(plan), "--json"]) == 0
     kept = json.loads(capsys.readouterr().out)
     assert [(f["line"], f["run"], f["target"], f["dropped"]) for f in kept["outliers"]] == [
@@ -74,6 +81,25 @@ def test_import_reports_and_drops_outliers(plan, tmp_path, capsys):
     assert np.isnan(stored.deviations[2, 4])
     raw = Project.open(tmp_path / "b.h5").raw_data("x_y0_z0")
     assert raw.deviations[2, 4] == deviations[2, 4]  # the raw values keep everything
+
+
+def test_calibrate_names_the_outliers_flagged_at_import(plan, tmp_path, capsys):
+    # a reading 9 µm off the other runs: the import flags it; calibrate fitted it silently,
+    # its console said nothing, and report.json held the flag as a Python repr
+    _with_an_outlier(plan)
+    report = tmp_path / "r.json"
+    assert main(["calibrate", str(plan), "--no-sensitivity", "--report", str(report)]) == 0
+    out = capsys.readouterr().out
+    assert "1 outlier flag(s) at import, kept in the fit (--drop-outliers leaves them out):" in out
+    (flag,) = json.loads(report.read_text())["outlier_flags"]
+    assert flag.startswith("line x_y0_z0: reading at 200 mm, run 3 ")
+    assert "σ" in flag and f"  {flag}" in out.splitlines()
+    assert json.loads(report.read_text())["outliers_dropped"] is False
+
+    assert main(["calibrate", str(plan), "--no-sensitivity", "--drop-outliers"]) == 0
+    assert "1 outlier flag(s) at import, set to missing (--drop-outliers):" in (
+        capsys.readouterr().out
+    )
 
 
 def test_import_errors_are_one_line(plan, tmp_path, capsys):
