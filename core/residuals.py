@@ -2048,13 +2048,10 @@ def _judge(
         if unsteady is not None:
             return refused(unsteady, "not repeatable")
     if improvement < options.margin:
-        local = _where_it_acts(effect, current, rows) if improvement > 0 else None
+        local = _gain_where_it_acts(effect, current, rows, cv, cv_new) if improvement > 0 else None
         gained = 0.0
         if local is not None:
-            acts, where = local
-            local_before = _rms(cv.residual, current.readings, acts)
-            local_after = _rms(cv_new.residual, current.readings, acts)
-            gained = _gain(local_before, local_after)
+            gained, where, local_before, local_after = local
             reason += (
                 f"; over the {where}: {local_before:.4g} → {local_after:.4g} "
                 f"({100 * gained:.1f} % better)"
@@ -2152,6 +2149,25 @@ def _where_it_acts(
     if not acts.any():
         return None
     return acts, f"lines that move {effect.axis}, the only ones its slope acts on"
+
+
+def _gain_where_it_acts(
+    effect: Effect,
+    current: Identification,
+    rows: NDArray[np.bool_],
+    before: CrossValidation,
+    after: CrossValidation,
+) -> tuple[float, str, float, float] | None:
+    """Over the readings of ``rows`` that ``effect`` acts on (:func:`_where_it_acts`): the
+    relative gain of the held-out RMS from ``before`` to ``after``, what those readings are,
+    and the two RMS (µm); None where the effect acts over the plan."""
+    reach = _where_it_acts(effect, current, rows)
+    if reach is None:
+        return None
+    near, where = reach
+    first = _rms(before.residual, current.readings, near)
+    second = _rms(after.residual, current.readings, near)
+    return _gain(first, second), where, first, second
 
 
 #: A local defect reaches the readings where its profile is at least this share of its peak
@@ -4765,16 +4781,9 @@ def _backward(
             cost = without / with_it - 1.0
             if 0.0 < cost < needed:  # a bump is asked over its reach, as when it was kept
                 rows, _ = _rows_compared(cv, cv_new, current, refit)
-                reach = _where_it_acts(effect, current, rows)
+                reach = _gain_where_it_acts(effect, current, rows, cv, cv_new)
                 if reach is not None:
-                    near = reach[0]
-                    cost = max(
-                        cost,
-                        -_gain(
-                            _rms(cv.residual, current.readings, near),
-                            _rms(cv_new.residual, current.readings, near),
-                        ),
-                    )
+                    cost = max(cost, -reach[0])
             costs.append((cost, effect, refit, cv_new, with_it, without))
         if not costs:
             break
