@@ -2992,6 +2992,10 @@ class _State:
     #: per kept effect that has any: its rivals of another place that fit as well (report.json
     #: ``effects[].rivals``: the kept fit's score and :func:`_rival_report` of each)
     rivals: dict[EffectKey, dict[str, object]] = field(default_factory=dict)
+    #: per kept effect: the findings of its step's candidates that predicted the held-out data
+    #: as well (its rivals and other orders), asked again in the final model
+    #: (:func:`_surface_doubts_at_the_end`)
+    tied: dict[EffectKey, list[Finding]] = field(default_factory=dict)
     #: per axis: a kept searched cycle's aliases
     aliased: dict[str, tuple[float, ...]] = field(default_factory=dict)
     number: int = 0
@@ -3382,24 +3386,36 @@ def _doubts(state: _State, chosen: _Trial, trials: list[_Trial], options: LoopOp
     state.shape_doubt[key] = np.vstack([np.atleast_2d(d.moves) for d in doubts])
     state.ambiguous[key] = [d.text for d in doubts if d.text is not None]
     named = [_rival_report(t) for d in doubts for t in d.rivals]
+    state.tied[key] = [
+        t.finding
+        for t in trials
+        if t is not chosen
+        and (t.ok or t.uncorroborated)
+        and t.score <= chosen.score * (1.0 + options.tie)
+    ]
     state.rivals.pop(key, None)
     if named:
         state.rivals[key] = {"kept_cv_rms_all_lines": chosen.score, "effects": named}
 
 
 def _untried_places(
-    findings: list[Finding], tried: list[_Trial], chosen: _Trial, options: LoopOptions
+    findings: list[Finding],
+    tried: list[_Trial],
+    chosen: _Trial,
+    options: LoopOptions,
+    count: int | None = None,
 ) -> list[list[Finding]]:
     """For a kept surface: each other direction and pair of axes no refit of the step tried,
     where the diagnosis gives its strongest finding nearly the chosen one's gain (at least
-    :data:`RIVAL_GAIN_SHARE` of it), up to ``candidates_per_step``; per place, its findings
-    strongest first. A plan that sees a surface on one line sees every surface alike there
-    (blind 27068: six places within 1 % of one another's gain, the injected one fourth): each
-    is refitted, only so the report can name it as a rival that fits as well. The caller
-    refits a place's next finding when one is refused as implausible: the strongest is often
-    its highest order, which a sparse plan lets swing far off the lines that measure it (blind
-    47031, direct plan: EZ over X×Z of order 8 peaked at 69 µm where order 6 predicts the
-    held-out data as well as the kept EZ over Y×Z, and was not named)."""
+    :data:`RIVAL_GAIN_SHARE` of it), up to ``count`` (``candidates_per_step`` if None); per
+    place, its findings strongest first. A plan that sees a surface on one line sees every
+    surface alike there (blind 27068: six places within 1 % of one another's gain, the
+    injected one fourth): each is refitted, only so the report can name it as a rival that
+    fits as well. The caller refits a place's next finding when one is refused as implausible:
+    the strongest is often its highest order, which a sparse plan lets swing far off the
+    lines that measure it (blind 47031, direct plan: EZ over X×Z of order 8 peaked at 69 µm
+    where order 6 predicts the held-out data as well as the kept EZ over Y×Z, and was not
+    named)."""
     effect = chosen.finding.effect
     if not isinstance(effect, CrossAxis):
         return []
@@ -3415,13 +3431,21 @@ def _untried_places(
         ):
             continue
         places.setdefault(place, []).append(finding)
-    return list(places.values())[: options.candidates_per_step]
+    return list(places.values())[: options.candidates_per_step if count is None else count]
 
 
 #: A surface of another place is refitted as a kept one's possible rival where the diagnosis
 #: gives it at least this share of the kept one's gain (:func:`_untried_places`); so is a set-up
 #: error of another line (:func:`_untried_lines`).
 RIVAL_GAIN_SHARE = 0.95
+
+#: Every other place a surface can have: three directions over three pairs of axes, less its own
+#: (:func:`_surface_doubts_at_the_end` refits each that nearly ties it, only to name it).
+EVERY_PLACE = 8
+
+#: At most this many orders of another place are refitted as a kept surface's possible rivals in
+#: the final model, beside those refused as implausible (:func:`_surface_doubts_at_the_end`).
+PER_PLACE = 2
 
 #: At most this many set-up errors of other lines are refitted as a kept one's possible rivals
 #: (:func:`_untried_lines`).
@@ -3774,6 +3798,7 @@ def _close_loop(
 
     rounds(state, progress)
     state = _other_route(state, rounds, fit, options, progress, base)
+    _surface_doubts_at_the_end(state, fit, options, base, cv_base)
     current, cv, kept = state.current, state.cv, state.kept
     if any(isinstance(e, AbbeOffset) for e in kept):
         current, cv = fit.converged(kept, current.model)
@@ -3817,6 +3842,111 @@ def _close_loop(
         spacing,
         rivals,
     )
+
+
+def _surface_doubts_at_the_end(
+    state: _State,
+    fit: _Fitter,
+    options: LoopOptions,
+    base: Identification,
+    cv_base: CrossValidation,
+) -> None:
+    """Ask what the plan leaves open about each kept surface (:func:`_doubts`) again in the
+    model the loop ends with: the surface judged against the rest without it, beside what
+    predicted as well when it was kept and the other orders and places the diagnosis of that model
+    gives nearly its gain (:func:`_variants_of_place`, :func:`_untried_places`; at another
+    place the same order and shape first, then the strongest, :data:`PER_PLACE`), each
+    refitted only to be named.
+
+    A step names the rivals of the model it keeps the surface in; the effects kept after it,
+    and the backward pass, change what the surface has to explain, and a surface put in the
+    place of another there was never asked (blind 51096, displacement-only plan: EY over X×Y
+    kept at step 2 before the cosine error of diag_xy_offcentre, which the backward pass then
+    kept beside it one order lower; in the final model the injected EY over Y×Z predicts the
+    held-out data as well, 0.2838 against 0.2831 µm, with the same diagnosis gain, and was
+    never named; at order 4, 0.2841). Other places that predict better than the kept surface
+    by more than ``tie`` are not named: no refit of the loop ranked them against it."""
+    for surface in [e for e in state.kept if isinstance(e, CrossAxis)]:
+        _surface_asked_again(state, surface, fit, options, base, cv_base)
+
+
+def _surface_asked_again(
+    state: _State,
+    surface: CrossAxis,
+    fit: _Fitter,
+    options: LoopOptions,
+    base: Identification,
+    cv_base: CrossValidation,
+) -> None:
+    """:func:`_surface_doubts_at_the_end` for one kept surface."""
+    rest = [e for e in state.kept if e is not surface]
+    without, cv_without = (base, cv_base) if not rest else fit(rest, state.current.model)
+    findings, _ = diagnose(without, [e.key for e in rest], options)
+    own = next((f for f in findings if f.effect.key == surface.key), None)
+    if own is None:  # the diagnosis proposes it at another order: its place's strongest
+        place = _surface_place(surface)
+        strongest = max(
+            (f.gain for f in findings if _surface_place(f.effect) == place), default=0.0
+        )
+        own = Finding(surface, float("nan"), 0.0, 0, 0.0, 0.0, "final model", strongest)
+    own = replace(own, effect=surface)
+    chosen = _judge(own, without, cv_without, state.current, state.cv, options, fit)
+    # what predicted as well when it was kept, its other orders, then the other places
+    tried: dict[EffectKey, _Trial] = {surface.key: chosen}
+
+    def ask(finding: Finding) -> _Trial:
+        key = finding.effect.key
+        if key not in tried:
+            tried[key] = _tried(finding, fit, rest, without, cv_without, options)
+        return tried[key]
+
+    for finding in [*state.tied.get(surface.key, ()), *_variants_of_place(findings, own, options)]:
+        ask(finding)
+    for orders in _untried_places(findings, [chosen], chosen, options, EVERY_PLACE):
+        # the same shape at the other place and its strongest finding (often a higher order,
+        # where the step's batch may have tried the same shape); the next order where one
+        # swings implausibly
+        orders.sort(key=lambda f: not _same_shape(f.effect, surface))
+        plausible = 0
+        for finding in orders:
+            plausible += ask(finding).verdict != "implausible"
+            if plausible == PER_PLACE:
+                break
+    trials = _on_common_rows(list(tried.values()))
+    chosen, place = trials[0], _surface_place(surface)
+    # another place that predicts better by more than the tie is not named (no refit of the
+    # loop ranked the two); a richer order of its own place, refused for the margin, unsettles
+    # its shape (:func:`_unsettled`)
+    better = chosen.score * (1.0 - options.tie)
+    asked = [t for t in trials if t.score >= better or _surface_place(t.finding.effect) == place]
+    _doubts(state, chosen, asked, options)
+
+
+def _same_shape(effect: Effect, surface: CrossAxis) -> bool:
+    """Whether ``effect`` is a surface of ``surface``'s order, with or without lever-arm terms
+    as it is."""
+    return (
+        isinstance(effect, CrossAxis)
+        and effect.order == surface.order
+        and effect.lever_terms == surface.lever_terms
+    )
+
+
+def _variants_of_place(
+    findings: list[Finding], own: Finding, options: LoopOptions
+) -> list[Finding]:
+    """The findings of a kept surface's direction and pair of axes at another order (or with or
+    without lever-arm terms) with at least :data:`RIVAL_GAIN_SHARE` of its gain, strongest
+    first, up to ``candidates_per_step``."""
+    place = _surface_place(own.effect)
+    return [
+        f
+        for f in findings
+        if _surface_place(f.effect) == place
+        and f.effect.key != own.effect.key
+        and f.log10_false_alarm < np.log10(options.alpha)
+        and f.gain >= RIVAL_GAIN_SHARE * own.gain
+    ][: options.candidates_per_step]
 
 
 def _other_route(
