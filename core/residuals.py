@@ -3426,8 +3426,7 @@ def _untried_places(
         if (
             place is None
             or place in seen
-            or finding.log10_false_alarm >= np.log10(options.alpha)
-            or finding.gain < RIVAL_GAIN_SHARE * chosen.finding.gain
+            or not _nearly_as_strong(finding, chosen.finding.gain, options)
         ):
             continue
         places.setdefault(place, []).append(finding)
@@ -3473,8 +3472,7 @@ def _untried_lines(
         for finding in sorted(findings, key=lambda f: -f.gain)
         if type(finding.effect) is type(effect)
         and finding.effect.key not in seen
-        and finding.log10_false_alarm < np.log10(options.alpha)
-        and finding.gain >= RIVAL_GAIN_SHARE * chosen.finding.gain
+        and _nearly_as_strong(finding, chosen.finding.gain, options)
     ][:SET_UP_RIVALS]
 
 
@@ -3944,9 +3942,17 @@ def _variants_of_place(
         for f in findings
         if _surface_place(f.effect) == place
         and f.effect.key != own.effect.key
-        and f.log10_false_alarm < np.log10(options.alpha)
-        and f.gain >= RIVAL_GAIN_SHARE * own.gain
+        and _nearly_as_strong(f, own.gain, options)
     ][: options.candidates_per_step]
+
+
+def _nearly_as_strong(finding: Finding, gain: float, options: LoopOptions) -> bool:
+    """Whether ``finding`` passes the loop's false-alarm level with at least
+    :data:`RIVAL_GAIN_SHARE` of ``gain``, a kept effect's: a possible rival of it."""
+    return (
+        finding.log10_false_alarm < np.log10(options.alpha)
+        and finding.gain >= RIVAL_GAIN_SHARE * gain
+    )
 
 
 def _other_route(
@@ -4909,7 +4915,9 @@ def _backward(
                 continue  # the rest explains the data only with parameters no set-up allows
             with_it, without, _ = _compared(cv, cv_new, current, other_fit=refit)
             cost = without / with_it - 1.0
-            if 0.0 < cost < needed:  # a bump is asked over its reach, as when it was kept
+            # an effect that acts on few readings (a bump, a reversal's slope) is asked over
+            # them, as when it was kept
+            if 0.0 < cost < needed:
                 rows, _ = _rows_compared(cv, cv_new, current, refit)
                 reach = _gain_where_it_acts(effect, current, rows, cv, cv_new)
                 if reach is not None:
