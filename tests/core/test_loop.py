@@ -321,6 +321,127 @@ def test_a_line_that_repeats_worse_than_its_peers_is_reported_from_run_to_run() 
     ]
 
 
+@pytest.mark.parametrize("cut", ["last three readings", "from run 4"])
+def test_a_beam_cut_and_re_zeroed_is_reported_as_a_step_at_its_moment(cut: str) -> None:
+    """A beam cut and re-zeroed shifts every later reading of its line by one amount: 0.5 µm
+    (5× the noise) on the last run's last three readings of 200, which the target means dilute
+    fivefold and the line's spread barely shows; or on every reading from run 4 on, which the
+    time test sees as runs that drift apart. Either is reported once, as a step at its moment,
+    and sized."""
+    truth = sim.random_truth(seed=17)
+    vm = sim.VirtualMachine(
+        truth, (), seed=17, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
+    )
+    measurement = vm.measure(plans.layout("full", truth.machine, STEP_MM, JITTER_MM))
+    name = next(line.name for line in measurement.lines if line.spec.quantity == "linear")
+    lines = []
+    for line in measurement.lines:
+        if line.name == name:
+            times = line.data.times_s
+            run = times.shape[0] if cut == "last three readings" else 4
+            moment = np.sort(times[-1])[-3] if cut == "last three readings" else times[3].min()
+            step = np.where(times >= moment, 0.5, 0.0)
+            line = Line(line.spec, replace(line.data, deviations=line.data.deviations + step))
+            at = float(line.data.targets_mm[int(np.flatnonzero(times[run - 1] == moment)[0])])
+            # per target and direction, m runs of which a are later: the step's least-squares
+            # estimate less the targets' means has variance σ² / Σ a(m − a)/m
+            information = 0.0
+            for sense in (1, -1):
+                later = (times >= moment)[line.data.run_direction == sense]
+                a, m = later.sum(axis=0), later.shape[0]
+                information += float(np.sum(a * (m - a) / m))
+        lines.append(line)
+    report = close_loop(Measurement(measurement.machine, tuple(lines))).to_report()
+    assert report["effects"] == [], report["effects"]
+    (hit,) = [u for u in report["unexplained"] if name in u["where"]]
+    assert hit["where"] == f"line {name}, run {run} at {at:.1f} mm"
+    assert "steps by +" in hit["description"]
+    assert hit["magnitude_um"] == pytest.approx(0.5, abs=3 * NOISE / np.sqrt(information))
+
+
+def test_a_line_that_steps_between_every_run_is_reported_as_moving_between_them() -> None:
+    """A reflector that settles differently in each run shifts every run of its line by its own
+    amount (here 0, +0.6, +0.6, −0.6, −0.6, +0.6 … µm, 6× the noise, the runs alternating in
+    direction so that each direction reads both signs): reported once, and said to step at more
+    than one moment, not as a single beam cut."""
+    truth = sim.random_truth(seed=17)
+    vm = sim.VirtualMachine(
+        truth, (), seed=17, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
+    )
+    measurement = vm.measure(plans.layout("full", truth.machine, STEP_MM, JITTER_MM))
+    name = next(line.name for line in measurement.lines if line.spec.quantity == "linear")
+    lines = []
+    for line in measurement.lines:
+        if line.name == name:
+            runs = line.data.deviations.shape[0]
+            offsets = 0.6 * np.array([0.0] + [(-1.0) ** (k // 2) for k in range(runs - 1)])
+            deviations = line.data.deviations + offsets[:, None]
+            line = Line(line.spec, replace(line.data, deviations=deviations))
+        lines.append(line)
+    report = close_loop(Measurement(measurement.machine, tuple(lines))).to_report()
+    assert report["effects"] == [], report["effects"]
+    (hit,) = [u for u in report["unexplained"] if name in u["where"]]
+    assert "at other moments too" in hit["description"], hit
+
+
+def test_a_line_that_drifts_in_time_is_not_reported_as_a_step() -> None:
+    """A zero that drifts steadily over one line's runs (0.5 µm by its last reading, a laser
+    warming up on it alone) is reported as following time; a step at mid-line takes much of it
+    too, enough to leave the line unsystematic, but less than a smooth course in time, and is
+    not what is said."""
+    truth = sim.random_truth(seed=17)
+    vm = sim.VirtualMachine(
+        truth, (), seed=17, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
+    )
+    measurement = vm.measure(plans.layout("full", truth.machine, STEP_MM, JITTER_MM))
+    name = next(line.name for line in measurement.lines if line.spec.quantity == "linear")
+    lines = []
+    for line in measurement.lines:
+        if line.name == name:
+            times = line.data.times_s
+            drift = 0.5 * (times - times.min()) / np.ptp(times)
+            line = Line(line.spec, replace(line.data, deviations=line.data.deviations + drift))
+        lines.append(line)
+    report = close_loop(Measurement(measurement.machine, tuple(lines))).to_report()
+    hits = [u for u in report["unexplained"] if name in u["where"]]
+    assert hits, report["unexplained"]
+    assert all("steps by" not in u["description"] for u in hits), hits
+
+
+def test_the_step_in_time_is_exact_without_noise_and_holds_its_false_alarm_level() -> None:
+    """The test of a step in time (``_step_in_time``) on residuals drawn directly: a step alone,
+    less its targets' means per direction, is sized exactly at its first reading; noise alone is
+    held to its level (Bonferroni over the splits: at most the level, fewer inside a line)."""
+    from volucal.core.readings import flatten
+    from volucal.core.residuals import _cell_key, _step_in_time
+
+    truth = sim.random_truth(seed=19)
+    vm = sim.VirtualMachine(truth, (), seed=19, laser=sim.LaserSetup(noise_um=0.2))
+    readings = flatten(vm.measure(plans.layout("direct", truth.machine, STEP_MM, JITTER_MM)))
+    index = 0
+    mask = readings.line == index
+    time = readings.time_s[mask]
+    later = (time >= np.sort(time)[-40]).astype(float)  # the last 40 readings in time
+    key = _cell_key(readings, index)
+    cell_mean = np.bincount(key, weights=later) / np.maximum(np.bincount(key), 1)
+    residual = np.zeros(len(readings))
+    residual[mask] = 1.5 * (later - cell_mean[key])
+    jump = _step_in_time(readings, residual, index)
+    assert jump is not None
+    assert jump.size == pytest.approx(1.5, rel=1e-9)
+    assert (jump.after, jump.before) == (40, int(mask.sum()) - 40)
+    first = np.flatnonzero(mask)[np.argsort(time)[-40]]
+    assert (jump.run, jump.target) == (readings.run[first], readings.target[first])
+    rng = np.random.default_rng(5)
+    sigma = float(readings.sigma[mask][0])
+    levels = []
+    for _ in range(400):
+        residual[mask] = rng.normal(0.0, sigma, mask.sum())
+        levels.append(_step_in_time(readings, residual, index).p)  # type: ignore[union-attr]
+    # 400 draws: at most 5 % + 3 binomial standard deviations below 0.05
+    assert np.mean(np.array(levels) < 0.05) <= 0.05 + 3 * np.sqrt(0.05 * 0.95 / 400)
+
+
 def test_a_difference_between_the_directions_of_one_line_is_reported_and_sized() -> None:
     """A line whose readings differ between the approach directions by 0.6 µm (6× the noise),
     the same at every target, but no other line moving its axis shows it: its optics, not the

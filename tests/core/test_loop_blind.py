@@ -55,6 +55,8 @@ read the method), for behaviours its suite showed missing:
   line alone still drifting in time beyond its repeatability, is taken out by the audit and the
   line is reported unexplained (a column that bends as it warms); a right one whose line keeps
   a residual locked to position is kept;
+- a beam cut and re-zeroed on a line's last two readings, diluted eightfold in the targets'
+  means, is reported as a step in time on that line, at its run and target, and sized;
 - a laser that wanders in time is not kept as a drift: between runs its size changes by more
   than the readings see of the drift itself;
 - a surface term that reads on every line as the 21 errors do (a twist the plan sees as rolls
@@ -1242,6 +1244,21 @@ def test_a_laser_that_wanders_is_not_kept_as_a_drift(seed: int) -> None:
     assert outcome.category == "outside"
     assert not outcome.kept
     assert outcome.unexplained > 0
+
+
+def test_a_beam_cut_on_the_last_readings_of_a_line_is_reported_at_its_moment() -> None:
+    # displacement-only plan: the beam was cut on body_ppp at the second-last reading of its
+    # eighth and last run and re-zeroed, 2.3 µm off (5.2 times the noise) on two readings of
+    # 592; the target means and the line's spread left it unreported
+    report, truth = _loop(51109)
+    (effect,) = truth["effects"]
+    assert effect["kind"] == "outside:beam_interruption"
+    line, step = effect["line"], effect["parameters"]["step_um"]
+    assert report["effects"] == []
+    (hit,) = [u for u in report["unexplained"] if u["where"].startswith(f"line {line}, run 8 ")]
+    sigma = truth["noise"]["sigma_um"]
+    # two readings less their targets' means (eight runs): standard error σ/√2 · √(8/7)
+    assert hit["magnitude_um"] == pytest.approx(abs(step), abs=3 * sigma / np.sqrt(2) * 1.07)
 
 
 def test_a_twist_the_plan_reads_as_angles_is_left_to_them_and_said_so() -> None:
