@@ -1247,7 +1247,7 @@ class _Jump(NamedTuple):
 
     #: false-alarm level of the largest step over every split, Bonferroni over the splits
     p: float
-    #: the step's size (µm or µrad; what the readings from ``first`` on carry over the others)
+    #: the step's size (µm or µrad: what the later readings carry over the earlier ones)
     size: float
     #: the first reading, in the line's time order, of the part that steps: its run and target
     run: int
@@ -1257,6 +1257,8 @@ class _Jump(NamedTuple):
     #: readings before and from the split
     before: int
     after: int
+    #: the line's repeatability the step is held to (µm or µrad)
+    sigma: float
     #: per reading of the line (in the readings' order), whether it is from the split on
     later: NDArray[np.bool_]
     #: the sum of squares the step takes out of what is left about the cells' means, and what
@@ -1273,14 +1275,17 @@ def _step_in_time(readings: Readings, residual: FloatArray, index: int) -> _Jump
 
     A split's offset is the least-squares step ``δ·u``, ``u`` the indicator of the later readings
     less its mean in each cell (target and direction): ``δ = u·r / u·u``, with z = u·r / (σ |u|),
-    standard normal without a step for readings of repeatability σ. Held to ``2 Φ(−|z|)`` times
-    the number of splits (Bonferroni), the largest is exact at the line's ends, where a beam cut
-    near the last readings leaves two or three readings a few σ off, and conservative inside it,
-    where the splits are alike and the time test of :func:`_line_test` sees a step the size of a
-    run. A step from the start up to a split is the same test (``u`` of the earlier readings is
-    −``u``). Beside it, what a smooth course in time (:func:`_time_fit`) takes of the same
-    residual, which a drift fills better than any one step. None for a line that reads each
-    target once in each direction (nothing is left about the cells' means)."""
+    standard normal without a step for readings of repeatability σ; σ is the line's own
+    (:func:`readings.repeatability`, the spread about the same cells), which a step widens too.
+    The largest is held to ``2 Φ(−|z|)`` times the number of splits (Bonferroni), a bound:
+    neighbouring splits are alike, and σ holds the step, so the level is conservative, a line
+    with few readings more so; a beam cut near the last readings, two or three readings a few σ
+    off, passes it where the targets' means and the time test of :func:`_line_test` dilute
+    them. Splits fall between readings at different times only. A step from the start up to a
+    split is the same test (``u`` of the earlier readings is −``u``). Beside it, what a smooth
+    course in time (:func:`_time_fit`) takes of the same residual, which a drift fills better
+    than any one step. None for a line that reads each target once in each direction (nothing is
+    left about the cells' means)."""
     mask = readings.line == index
     _, _, rest, time = _line_parts(readings, residual, index)
     smooth = _time_fit(rest, time, readings.target_mm[mask])
@@ -1296,7 +1301,10 @@ def _step_in_time(readings: Readings, residual: FloatArray, index: int) -> _Jump
     # |u|² grows by 1 − (2a + 1)/m as a reading joins the later part (a of its cell already in)
     norm2 = np.cumsum(1.0 - (2.0 * rank + 1.0) / counts[cells])
     dot = np.cumsum(rest[order])
-    splits = np.flatnonzero(norm2 > 1e-9)[:-1]  # the last is every reading: no split
+    # a split after the k-th latest reading, where the time changes; every reading in the
+    # later part leaves u = 0
+    apart = time[order][:-1] != time[order][1:]
+    splits = np.flatnonzero((norm2[:-1] > 1e-9) & apart)
     if splits.size == 0:
         return None
     sigma = float(readings.sigma[mask][0])
@@ -1315,6 +1323,7 @@ def _step_in_time(readings: Readings, residual: FloatArray, index: int) -> _Jump
         float(readings.time_s[first]),
         int(cells.size - best - 1),
         best + 1,
+        sigma,
         later,
         float(dot[best] ** 2 / norm2[best]),
         float(np.sum(smooth**2)),
@@ -1325,9 +1334,11 @@ def _jumps(
     identification: Identification, alpha: float, reported: set[int]
 ) -> dict[int, Unexplained]:
     """Lines whose readings step at one moment (:func:`_step_in_time`) beyond what their
-    repeatability allows, at ``alpha`` Bonferroni over the lines, by index; of the lines
-    ``reported`` already (:func:`_unexplained_by_line`), those the step explains: without it,
-    none of their tests is beyond the level any more.
+    repeatability allows, at ``alpha`` Bonferroni over the lines, and more than a smooth course
+    in time would take, by index; of the lines ``reported`` already
+    (:func:`_unexplained_by_line`), those the step explains: without it, none of their tests
+    is beyond the level any more, a line that repeated far worse than its peers no longer does,
+    and the line steps nowhere else.
 
     A beam cut and re-zeroed, a reflector knocked or a laser that loses its count shifts every
     later reading of its line by one amount: nothing the catalogue models changes one line at
@@ -1340,6 +1351,7 @@ def _jumps(
     readings = identification.readings
     residual = identification.residual
     count = len(readings.lines)
+    wandering = set(_wandering(identification, alpha))
     out = {}
     for index, line in enumerate(readings.lines):
         mask = readings.line == index
@@ -1353,15 +1365,21 @@ def _jumps(
         # the step taken out, the line's mean kept (its zero offset is the fit's)
         without = residual.copy()
         without[mask] -= jump.size * (jump.later - jump.later.mean())
-        if index in reported and _systematic(
-            _line_test(readings, without, index), count, alpha, directions=True
+        again = _step_in_time(readings, without, index)
+        more = again is not None and again.p * count < alpha
+        if index in reported and (
+            more
+            or _systematic(_line_test(readings, without, index), count, alpha, True)
+            or (
+                index in wandering
+                and index in _wandering(replace(identification, residual=without), alpha)
+            )
         ):
             continue
-        again = _step_in_time(readings, without, index)
         unit = _unit(line.spec)
         position = float(line.data.targets_mm[jump.target])
         minutes = jump.time_s / 60.0
-        if again is not None and again.p * count < alpha:
+        if more:
             what = (
                 "and at other moments too: its readings move between runs or within them (a "
                 "reflector that settles differently in each run, a laser that wanders, beam "
@@ -1379,7 +1397,7 @@ def _jumps(
                 f"from its reading at {position:.1f} mm in run {jump.run + 1} "
                 f"({minutes:.1f} min into the session) on: its {jump.after} readings "
                 f"from there and its {jump.before} before differ by "
-                f"{abs(jump.size) / float(readings.sigma[mask][0]):.1f} "
+                f"{abs(jump.size) / jump.sigma:.1f} "
                 f"times its repeatability (log10 false alarm {_log10_text(jump.p)}, "
                 f"over every moment of the line); {what}; measure the line again"
             ),
