@@ -329,6 +329,24 @@ def test_a_line_that_repeats_worse_than_its_peers_is_reported_from_run_to_run() 
     ]
 
 
+def _first_linear_line_changed(change) -> tuple[str, Measurement]:  # type: ignore[no-untyped-def]
+    """The full plan on a clean machine (seed 17, noise NOISE) with its first linear line's
+    readings plus ``change(line.data)`` (µm per run and target), and that line's name."""
+    truth = sim.random_truth(seed=17)
+    vm = sim.VirtualMachine(
+        truth, (), seed=17, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
+    )
+    measurement = vm.measure(plans.layout("full", truth.machine, STEP_MM, JITTER_MM))
+    name = next(line.name for line in measurement.lines if line.spec.quantity == "linear")
+    lines = tuple(
+        Line(line.spec, replace(line.data, deviations=line.data.deviations + change(line.data)))
+        if line.name == name
+        else line
+        for line in measurement.lines
+    )
+    return name, Measurement(measurement.machine, lines)
+
+
 @pytest.mark.parametrize("cut", ["last three readings", "from run 4"])
 def test_a_beam_cut_and_re_zeroed_is_reported_as_a_step_at_its_moment(cut: str) -> None:
     """A beam cut and re-zeroed shifts every later reading of its line by one amount: 0.5 µm
@@ -336,30 +354,25 @@ def test_a_beam_cut_and_re_zeroed_is_reported_as_a_step_at_its_moment(cut: str) 
     the targets' means per direction dilute fivefold and the line's spread barely shows; or on
     every reading from run 4 on, which the time test sees as runs that drift apart. Either is
     reported once, as a step at its moment, and sized."""
-    truth = sim.random_truth(seed=17)
-    vm = sim.VirtualMachine(
-        truth, (), seed=17, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
+
+    def moment(data: LineData) -> float:
+        times = data.times_s
+        return float(np.sort(times[-1])[-3] if cut == "last three readings" else times[3].min())
+
+    name, measurement = _first_linear_line_changed(
+        lambda data: np.where(data.times_s >= moment(data), 0.5, 0.0)
     )
-    measurement = vm.measure(plans.layout("full", truth.machine, STEP_MM, JITTER_MM))
-    name = next(line.name for line in measurement.lines if line.spec.quantity == "linear")
-    lines = []
-    for line in measurement.lines:
-        if line.name == name:
-            times = line.data.times_s
-            run = times.shape[0] if cut == "last three readings" else 4
-            moment = np.sort(times[-1])[-3] if cut == "last three readings" else times[3].min()
-            step = np.where(times >= moment, 0.5, 0.0)
-            line = Line(line.spec, replace(line.data, deviations=line.data.deviations + step))
-            at = float(line.data.targets_mm[int(np.flatnonzero(times[run - 1] == moment)[0])])
-            # per target and direction, m runs of which a are later: the step's least-squares
-            # estimate less the targets' means has variance σ² / Σ a(m − a)/m
-            information = 0.0
-            for sense in (1, -1):
-                later = (times >= moment)[line.data.run_direction == sense]
-                a, m = later.sum(axis=0), later.shape[0]
-                information += float(np.sum(a * (m - a) / m))
-        lines.append(line)
-    report = close_loop(Measurement(measurement.machine, tuple(lines))).to_report()
+    data = next(line.data for line in measurement.lines if line.name == name)
+    run = data.times_s.shape[0] if cut == "last three readings" else 4
+    at = float(data.targets_mm[int(np.flatnonzero(data.times_s[run - 1] == moment(data))[0])])
+    # per target and direction, m runs of which a are later: the step's least-squares estimate
+    # less the targets' means has variance σ² / Σ a(m − a)/m
+    information = 0.0
+    for sense in (1, -1):
+        later = (data.times_s >= moment(data))[data.run_direction == sense]
+        a, m = later.sum(axis=0), later.shape[0]
+        information += float(np.sum(a * (m - a) / m))
+    report = close_loop(measurement).to_report()
     assert report["effects"] == [], report["effects"]
     (hit,) = [u for u in report["unexplained"] if name in u["where"]]
     assert hit["where"] == f"line {name}, run {run} at {at:.1f} mm"
@@ -372,21 +385,13 @@ def test_a_line_that_steps_between_every_run_is_reported_once_as_repeating_worse
     amount (here 0, +0.6, +0.6, −0.6, −0.6, +0.6 … µm, 6× the noise, the runs alternating in
     direction so that each direction reads both signs): the line repeats far worse than its
     peers and is reported once, so, not as the one step its strongest split would be."""
-    truth = sim.random_truth(seed=17)
-    vm = sim.VirtualMachine(
-        truth, (), seed=17, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
-    )
-    measurement = vm.measure(plans.layout("full", truth.machine, STEP_MM, JITTER_MM))
-    name = next(line.name for line in measurement.lines if line.spec.quantity == "linear")
-    lines = []
-    for line in measurement.lines:
-        if line.name == name:
-            runs = line.data.deviations.shape[0]
-            offsets = 0.6 * np.array([0.0] + [(-1.0) ** (k // 2) for k in range(runs - 1)])
-            deviations = line.data.deviations + offsets[:, None]
-            line = Line(line.spec, replace(line.data, deviations=deviations))
-        lines.append(line)
-    report = close_loop(Measurement(measurement.machine, tuple(lines))).to_report()
+
+    def offsets(data: LineData) -> np.ndarray:
+        runs = data.deviations.shape[0]
+        return 0.6 * np.array([0.0] + [(-1.0) ** (k // 2) for k in range(runs - 1)])[:, None]
+
+    name, measurement = _first_linear_line_changed(offsets)
+    report = close_loop(measurement).to_report()
     assert report["effects"] == [], report["effects"]
     (hit,) = [u for u in report["unexplained"] if name in u["where"]]
     assert hit["where"] == f"line {name}, from run to run", hit
@@ -397,20 +402,10 @@ def test_a_line_that_drifts_in_time_is_not_reported_as_a_step() -> None:
     warming up on it alone) is reported as following time; a step at mid-line takes much of it
     too, enough to leave the line unsystematic, but less than a smooth course in time, and is
     not what is said."""
-    truth = sim.random_truth(seed=17)
-    vm = sim.VirtualMachine(
-        truth, (), seed=17, laser=sim.LaserSetup(noise_um=NOISE, noise_urad=NOISE)
+    name, measurement = _first_linear_line_changed(
+        lambda data: 0.5 * (data.times_s - data.times_s.min()) / np.ptp(data.times_s)
     )
-    measurement = vm.measure(plans.layout("full", truth.machine, STEP_MM, JITTER_MM))
-    name = next(line.name for line in measurement.lines if line.spec.quantity == "linear")
-    lines = []
-    for line in measurement.lines:
-        if line.name == name:
-            times = line.data.times_s
-            drift = 0.5 * (times - times.min()) / np.ptp(times)
-            line = Line(line.spec, replace(line.data, deviations=line.data.deviations + drift))
-        lines.append(line)
-    result = close_loop(Measurement(measurement.machine, tuple(lines)))
+    result = close_loop(measurement)
     report = result.to_report()
     hits = [u for u in report["unexplained"] if name in u["where"]]
     assert hits, report["unexplained"]
