@@ -3817,7 +3817,7 @@ def _handed_on_kept(
 ) -> list[_Trial] | None:
     """The group of :func:`_handed_on` to keep, or None: the best-predicting one, where no
     candidate of the step passed, or where it predicts better than the one that did, or as
-    well (within ``tie``) with fewer parameters — the rule :func:`_simplest_best` holds
+    well (within ``tie``) adding fewer parameters — the rule :func:`_simplest_best` holds
     single candidates to. Scores are taken over the readings all of them predict."""
     if not groups:
         return None
@@ -3827,8 +3827,8 @@ def _handed_on_kept(
     if chosen is None:
         return groups[best]
     score, theirs = leads[best].score, ranked[tried.index(chosen)].score
-    terms = sum(_complexity(t) for t in groups[best])
-    if score < theirs or (score <= theirs * (1.0 + tie) and terms < _complexity(chosen)):
+    terms = _model_terms(groups[best][0].refit)
+    if score < theirs or (score <= theirs * (1.0 + tie) and terms < _model_terms(chosen.refit)):
         return groups[best]
     return None
 
@@ -4776,9 +4776,13 @@ def _moved_errors(
 def _simplest_best(passing: list[_Trial], tie: float, margin: float) -> _Trial | None:
     """The candidate with the lowest cross-validated error; among those within ``tie`` of it, a
     physical effect before a finer function (short structure is the loop's to name, DESIGN.md:
-    a bump a finer spline follows as well is still a bump), then the one with the fewest
-    parameters (fitted and searched): a drift driven by the logged temperature before one whose
-    time constant had to be estimated, when both explain alike.
+    a bump a finer spline follows as well is still a bump), then the one that leaves the model
+    the fewest effects, then the one that adds the fewest parameters (fitted and searched) to
+    it: a drift driven by the logged temperature before one whose time constant had to be
+    estimated, when both explain alike. A variant of a kept effect (a surface of another order,
+    a cycle's period refined, :func:`_with`) replaces it and claims nothing new of the machine;
+    a second surface of the same direction that fits as well with two terms fewer is a second
+    claim: kept beside the order 3 surface where the injected one was of order 4 (blind 51162).
 
     A richer variant of one structure (:func:`_richer`: a surface of higher order or with
     lever-arm terms, a position-dependent reversal, a drift whose time constant is estimated) is
@@ -4799,7 +4803,12 @@ def _simplest_best(passing: list[_Trial], tie: float, margin: float) -> _Trial |
     close = [t for t in earned if t.score <= best * (1.0 + tie)]
     return min(
         close,
-        key=lambda t: (t.finding.effect.kind == "higher_order", _complexity(t), t.score),
+        key=lambda t: (
+            t.finding.effect.kind == "higher_order",
+            len(t.refit.effects),
+            _model_terms(t.refit),
+            t.score,
+        ),
     )
 
 
@@ -4834,6 +4843,12 @@ def _kept_instead(chosen: _Trial, trial: _Trial, margin: float) -> str:
 
 def _complexity(trial: _Trial) -> int:
     return _terms(trial.finding.effect, trial.refit)
+
+
+def _model_terms(fit: Identification) -> int:
+    """How many parameters the effects of ``fit`` have together (:func:`_terms`). The candidates
+    of a step all start from the same kept effects, so this orders them by what each adds."""
+    return sum(_terms(effect, fit) for effect in fit.effects)
 
 
 def _terms(effect: Effect, fit: Identification) -> int:

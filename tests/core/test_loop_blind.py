@@ -62,6 +62,8 @@ read the method), for behaviours its suite showed missing:
   than the readings see of the drift itself;
 - a surface term that reads on every line as the 21 errors do (a twist the plan sees as rolls
   and a squareness) is left to those errors, and the report says which errors carry it;
+- a surface of another order at the kept one's place is kept before a second surface of the
+  same direction that predicts as well with fewer terms: it makes no second claim;
 - a surface whose order the plan does not settle (another order predicts the held-out data as
   well and moves the errors fitted beside it) is kept with a warning naming the errors that
   move, and their stated uncertainties include the move; so do the errors beside a surface
@@ -1372,6 +1374,17 @@ def test_a_richer_surface_is_kept_only_when_its_extra_terms_earn_the_margin() ->
     assert "order 3" in surface["label"], surface["label"]
     assert max(outcome.squareness_error.values()) < 2.0, outcome.squareness_error  # µrad
     assert outcome.band_ratio <= 3.0
+
+
+def test_a_surface_of_another_order_is_kept_before_a_second_surface_that_ties_it() -> None:
+    # demo plan (blind 51162): a bump on Z and a surface EZ over Y×Z with u²v² terms. The order
+    # 3 surface was kept first; a step later its order 4 (0.2085 µm) and a second surface EZ over
+    # X×Y of which the plan sees one term (0.2088 µm) tied, and the one adding fewer parameters
+    # was kept beside the first: two claims on Z where the machine had one
+    outcome = run_blind(51162)
+    assert outcome.kept == outcome.expected
+    (surface,) = [e for e in outcome.effects_report if e["kind"] == "cross_axis"]
+    assert "Y×Z (order 4" in surface["label"], surface["label"]
 
 
 def test_a_drift_the_first_line_fixes_is_not_asked_to_be_confirmed_there() -> None:
