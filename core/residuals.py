@@ -3937,8 +3937,8 @@ def _close_loop(
     def rounds(state: _State, progress: ProgressCallback | None) -> None:
         """The forward steps, the backward pass, the set-up errors in the place of surfaces and
         the audit, in rounds while the audit takes an effect out."""
-        # the kept sets the rounds started from: a round that would start from one again, every
-        # candidate scored anew, would repeat that round step for step
+        # the kept sets the rounds started from: a round that would start from one again would
+        # repeat that round step for step
         starts: list[frozenset[EffectKey]] = []
         for _ in range(AUDIT_ROUNDS):
             starts.append(frozenset(e.key for e in state.kept))
@@ -3948,16 +3948,22 @@ def _close_loop(
             _prune(_set_up_for_surface, state, fit, base, cv_base, options)
             if frozenset(e.key for e in state.kept) != placed:  # a surface gave way: ask again
                 _prune(_backward, state, fit, base, cv_base, options)
-            if (
-                not _prune(_audit, state, fit, base, cv_base, options)
-                or state.number >= options.max_steps
-                or frozenset(e.key for e in state.kept) in starts
-            ):
+            before = frozenset(e.key for e in state.kept)
+            if not _prune(_audit, state, fit, base, cv_base, options):
+                break
+            left = frozenset(e.key for e in state.kept)
+            if state.number >= options.max_steps or left in starts:
                 break
             # what the taken-out effect held is the others' again: every candidate is scored
-            # anew
+            # anew, but the taken-out one waits until another is kept (:func:`_owed`): from the
+            # same model it would win the same step again, to be taken out again (indep.
+            # 5000152: a cosine error of y_linear tied a drift of Y, kept for its one parameter,
+            # was taken out as its line still drifted, and kept again a round later)
             state.refused.clear()
             state.refused_beside.clear()
+            for key in before - left:
+                state.refused[key] = np.inf
+                state.refused_beside[key] = left
 
     rounds(state, progress)
     state = _other_route(state, rounds, fit, options, progress, base)

@@ -151,6 +151,33 @@ def test_a_first_lines_cosine_error_beside_a_drift_is_refitted_once_the_drift_is
     assert abs(-p["scale_ppm"] - injected) <= 3 * p["scale_std_ppm"], (p, injected)
 
 
+def test_an_effect_the_audit_took_out_does_not_win_the_same_step_again() -> None:
+    """Seed 5000152 (block 5000000, demo plan): a 2.9 µm cycle of Y and a drift of Y (12.4 ppm,
+    τ 199 h). Once the cycle was kept, a cosine error of y_linear, the session's first Y line,
+    tied the drift (0.0994 µm against 0.0990 µm held out) and was kept for its one parameter;
+    the audit took it out, y_linear still drifting in time, and the round after it, starting
+    from the same model, kept the cosine again to take it out again: the drift was lost and four
+    lines reported. The taken-out cosine now waits until another effect is kept: the drift is,
+    and the cosine, tried beside it, is refused."""
+    from volucal.core.io.plan import import_plan, load_plan
+    from volucal.core.residuals import close_loop
+
+    scenario = make_scenario(5000152)
+    info, measured = measure(scenario, scenario.seed)
+    with tempfile.TemporaryDirectory(prefix="volucal-scenario-") as tmp:
+        measurement = import_plan(load_plan(write_session(Path(tmp), info, measured))).measurement
+    report = close_loop(measurement).to_report()
+    assert scenario.expected == {("cyclic", "Y"), ("thermal_drift", "Y")}
+    assert {effect_place(e) for e in report["effects"]} == scenario.expected
+    assert report["unexplained"] == []
+    cosine = [s for s in report["loop"] if s["effect"]["kind"] == "cosine"]
+    verdicts = [(s["stage"], s["verdict"]) for s in cosine]
+    assert [v for v in verdicts if v[1] in ("kept", "taken out")] == [
+        ("forward", "kept"),
+        ("audit", "taken out"),
+    ], verdicts
+
+
 @pytest.mark.parametrize(("seed", "line"), [(3500036, "x_linear"), (3500071, "z_linear_far")])
 def test_a_set_up_error_fitted_within_its_uncertainty_of_nothing_is_not_kept(
     seed: int, line: str
