@@ -108,11 +108,11 @@ class LoopOptions:
     retry_factor : a refused candidate is refitted again once its F statistic has grown by this
         factor (the model around it changed); one refused for a size that varied
         (:data:`SPOILED_BY_THE_REST`), or a set-up effect refused as implausible or short of the
-        margin, once another effect has been kept.
+        margin, or taken out by the final audit, once another effect has been kept.
     contender_share : a proposal is refitted in a step's first batch only when the residual sum
         of squares it would remove is at least this share of the strongest proposal's.
     tie : candidates whose cross-validated RMS is within this share of the best are equal; the
-        one with fewer parameters is kept.
+        one that leaves the model fewer effects is kept, then the one adding fewer parameters.
     repeatability_log10, repeatability_spread : a candidate whose size, fitted run by run within
         a line and an approach direction (line by line in the final audit, block by block of
         targets along its line for a set-up effect), varies beyond the noise at this false-alarm
@@ -3144,10 +3144,11 @@ class _State:
     kept: list[Effect] = field(default_factory=list)
     steps: list[Step] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
-    #: F statistic at which a candidate was last refused
+    #: F statistic at which a candidate was last refused; infinite for one the audit took out,
+    #: which waits until another effect is kept
     refused: dict[EffectKey, float] = field(default_factory=dict)
-    #: for a candidate last refused for what an effect still missing spoils (:func:`_owed`),
-    #: the effects kept when it was
+    #: for a candidate last refused for what an effect still missing spoils, or taken out by
+    #: the audit (:func:`_owed`), the effects kept when it was
     refused_beside: dict[EffectKey, frozenset[EffectKey]] = field(default_factory=dict)
     #: kept surfaces a rival predicts as well
     ambiguous: dict[EffectKey, list[str]] = field(default_factory=dict)
@@ -3817,8 +3818,10 @@ def _handed_on_kept(
 ) -> list[_Trial] | None:
     """The group of :func:`_handed_on` to keep, or None: the best-predicting one, where no
     candidate of the step passed, or where it predicts better than the one that did, or as
-    well (within ``tie``) adding fewer parameters — the rule :func:`_simplest_best` holds
-    single candidates to. Scores are taken over the readings all of them predict."""
+    well (within ``tie``) adding fewer parameters to the model. The effects are not counted,
+    as :func:`_simplest_best` counts them: a group is one set-up error per line that the
+    surface it stands against leaves systematic. Scores are taken over the readings all of
+    them predict."""
     if not groups:
         return None
     ranked = _on_common_rows(tried + [group[0] for group in groups])
@@ -3937,8 +3940,11 @@ def _close_loop(
     def rounds(state: _State, progress: ProgressCallback | None) -> None:
         """The forward steps, the backward pass, the set-up errors in the place of surfaces and
         the audit, in rounds while the audit takes an effect out."""
-        # the kept sets the rounds started from: a round that would start from one again would
-        # repeat that round step for step
+        # the kept sets the rounds started from: where the audit leaves one of them, another
+        # round would keep what that one kept over again (blind 26062: a surface the backward
+        # pass took out, and beside it the cosine the audit took out, owed a refit once the
+        # surface was back), and the loop stops there, at the cost of not retrying what an
+        # effect taken out of the first round's start may have hidden
         starts: list[frozenset[EffectKey]] = []
         for _ in range(AUDIT_ROUNDS):
             starts.append(frozenset(e.key for e in state.kept))
@@ -3955,10 +3961,12 @@ def _close_loop(
             if state.number >= options.max_steps or left in starts:
                 break
             # what the taken-out effect held is the others' again: every candidate is scored
-            # anew, but the taken-out one waits until another is kept (:func:`_owed`): from the
-            # same model it would win the same step again, to be taken out again (indep.
-            # 5000152: a cosine error of y_linear tied a drift of Y, kept for its one parameter,
-            # was taken out as its line still drifted, and kept again a round later)
+            # anew, but the taken-out one (its key: a cycle at another period, a surface of
+            # another order is another candidate) is not proposed until another is kept
+            # (:func:`_owed`): from the same model it would win the same step again, to be
+            # taken out again (indep. 5000152: a cosine error of y_linear tied a drift of Y,
+            # kept for its one parameter, was taken out as its line still drifted, and kept
+            # again a round later)
             state.refused.clear()
             state.refused_beside.clear()
             for key in before - left:
@@ -4167,8 +4175,7 @@ def _other_route(
 
     rounds(other, onward)
     ended, ended_other, _ = _compared(state.cv, other.cv, state.current, other_fit=other.current)
-    terms = sum(_terms(e, state.current) for e in state.kept)
-    terms_other = sum(_terms(e, other.current) for e in other.kept)
+    terms, terms_other = _model_terms(state.current), _model_terms(other.current)
     taken = ended_other < ended * (1.0 - options.margin) or (
         ended_other <= ended * (1.0 + options.tie) and terms_other < terms
     )
@@ -4786,9 +4793,11 @@ def _simplest_best(passing: list[_Trial], tie: float, margin: float) -> _Trial |
     the fewest effects, then the one that adds the fewest parameters (fitted and searched) to
     it: a drift driven by the logged temperature before one whose time constant had to be
     estimated, when both explain alike. A variant of a kept effect (a surface of another order,
-    a cycle's period refined, :func:`_with`) replaces it and claims nothing new of the machine;
-    a second surface of the same direction that fits as well with two terms fewer is a second
-    claim: kept beside the order 3 surface where the injected one was of order 4 (blind 51162).
+    a cycle's period refined, :func:`_with`) replaces it and claims nothing new of the machine:
+    ranked on parameters alone, a second surface EZ over X×Y adding two fewer than the kept
+    surface's next order was kept beside it, a second claim on Z where the machine had one
+    (blind 51162). So a set-up error of one parameter that ties a variant of a kept surface
+    gives way to it, where beside a surface of a new place it is kept (:func:`_set_up_tied`).
 
     A richer variant of one structure (:func:`_richer`: a surface of higher order or with
     lever-arm terms, a position-dependent reversal, a drift whose time constant is estimated) is
@@ -4904,11 +4913,12 @@ def _owed(state: _State, finding: Finding, beside: frozenset[EffectKey]) -> bool
     that varied, :data:`SPOILED_BY_THE_REST`, a set-up error too large or short of the margin
     without its neighbour, :func:`_set_up_spoiled_by_the_rest`, or a surface's gain on lines it left
     systematic, :func:`_gained_through_lines_it_leaves`: blind 45093, a surface EX over X×Z refused
-    while a local defect of Z, still missing, left five lines systematic), and another effect kept
-    since. It joins the next step's first batch whatever the diagnosis now says of it: the diagnosis
-    holds the kept effects' nonlinear parameters where they were fitted without it (a drift's τ,
-    fitted while the first line's cosine error was missing, took part of that error; refitted
-    together, τ moves back: indep. 3700091)."""
+    while a local defect of Z, still missing, left five lines systematic), or taken out by the
+    final audit (it waits till then), and another effect kept since. It joins the next step's
+    first batch whatever the diagnosis now says of it: the diagnosis holds the kept effects'
+    nonlinear parameters where they were fitted without it (a drift's τ, fitted while the first
+    line's cosine error was missing, took part of that error; refitted together, τ moves back:
+    indep. 3700091)."""
     was = state.refused_beside.get(finding.effect.key)
     return was is not None and was != beside
 

@@ -1377,12 +1377,13 @@ def test_a_richer_surface_is_kept_only_when_its_extra_terms_earn_the_margin() ->
 
 
 def test_a_surface_of_another_order_is_kept_before_a_second_surface_that_ties_it() -> None:
-    # demo plan (blind 51162): a bump on Z and a surface EZ over Y×Z with u²v² terms. The order
-    # 3 surface was kept first; a step later its order 4 (0.2085 µm) and a second surface EZ over
-    # X×Y of which the plan sees one term (0.2088 µm) tied, and the one adding fewer parameters
-    # was kept beside the first: two claims on Z where the machine had one
+    # demo plan (blind 51162): a bump on Z and a surface EZ over Y×Z (u·v … u³·v and u²·v²
+    # terms). The surface of order 3 with lever-arm terms was kept first; a step later its order
+    # 4 (0.2085 µm) and a second surface EZ over X×Y of which the plan sees one term (0.2088 µm)
+    # tied, and the one adding fewer parameters was kept beside the first: two claims on Z where
+    # the machine had one
     outcome = run_blind(51162)
-    assert outcome.kept == outcome.expected
+    assert outcome.kept == outcome.expected, (outcome.kept, outcome.expected)
     (surface,) = [e for e in outcome.effects_report if e["kind"] == "cross_axis"]
     assert "Y×Z (order 4" in surface["label"], surface["label"]
 

@@ -151,22 +151,27 @@ def test_a_first_lines_cosine_error_beside_a_drift_is_refitted_once_the_drift_is
     assert abs(-p["scale_ppm"] - injected) <= 3 * p["scale_std_ppm"], (p, injected)
 
 
+def _loop_report(scenario) -> dict:  # type: ignore[no-untyped-def]
+    """``close_loop``'s report.json on the scenario's files, as volucal imports them."""
+    from volucal.core.io.plan import import_plan, load_plan
+    from volucal.core.residuals import close_loop
+
+    info, measured = measure(scenario, scenario.seed)
+    with tempfile.TemporaryDirectory(prefix="volucal-scenario-") as tmp:
+        measurement = import_plan(load_plan(write_session(Path(tmp), info, measured))).measurement
+    return close_loop(measurement).to_report()
+
+
 def test_an_effect_the_audit_took_out_does_not_win_the_same_step_again() -> None:
     """Seed 5000152 (block 5000000, demo plan): a 2.9 µm cycle of Y and a drift of Y (12.4 ppm,
-    τ 199 h). Once the cycle was kept, a cosine error of y_linear, the session's first Y line,
+    τ 199 min). Once the cycle was kept, a cosine error of y_linear, the session's first Y line,
     tied the drift (0.0994 µm against 0.0990 µm held out) and was kept for its one parameter;
     the audit took it out, y_linear still drifting in time, and the round after it, starting
     from the same model, kept the cosine again to take it out again: the drift was lost and four
     lines reported. The taken-out cosine now waits until another effect is kept: the drift is,
     and the cosine, tried beside it, is refused."""
-    from volucal.core.io.plan import import_plan, load_plan
-    from volucal.core.residuals import close_loop
-
     scenario = make_scenario(5000152)
-    info, measured = measure(scenario, scenario.seed)
-    with tempfile.TemporaryDirectory(prefix="volucal-scenario-") as tmp:
-        measurement = import_plan(load_plan(write_session(Path(tmp), info, measured))).measurement
-    report = close_loop(measurement).to_report()
+    report = _loop_report(scenario)
     assert scenario.expected == {("cyclic", "Y"), ("thermal_drift", "Y")}
     assert {effect_place(e) for e in report["effects"]} == scenario.expected
     assert report["unexplained"] == []
@@ -176,6 +181,15 @@ def test_an_effect_the_audit_took_out_does_not_win_the_same_step_again() -> None
         ("forward", "kept"),
         ("audit", "taken out"),
     ], verdicts
+    (audit,) = [s["step"] for s in cosine if s["stage"] == "audit"]
+    (drift,) = [
+        s["step"]
+        for s in report["loop"]
+        if s["kept"] and s["stage"] == "forward" and s["effect"]["kind"] == "thermal_drift"
+    ]
+    assert drift > audit
+    # owed once the drift is kept, refitted beside it and refused
+    assert any(s["step"] > drift and not s["kept"] for s in cosine), verdicts
 
 
 @pytest.mark.parametrize(("seed", "line"), [(3500036, "x_linear"), (3500071, "z_linear_far")])
@@ -187,14 +201,8 @@ def test_a_set_up_error_fitted_within_its_uncertainty_of_nothing_is_not_kept(
     an Abbe offset of (−8 ± 13, 26 ± 26) mm, 3500071), yet predicted the held-out lines 3–5 %
     better: the comparison, not the effect, had changed. Nothing was injected on that line; the
     step that tried it says why it was refused."""
-    from volucal.core.io.plan import import_plan, load_plan
-    from volucal.core.residuals import close_loop
-
     scenario = make_scenario(seed)
-    info, measured = measure(scenario, scenario.seed)
-    with tempfile.TemporaryDirectory(prefix="volucal-scenario-") as tmp:
-        measurement = import_plan(load_plan(write_session(Path(tmp), info, measured))).measurement
-    report = close_loop(measurement).to_report()
+    report = _loop_report(scenario)
     assert {effect_place(e) for e in report["effects"]} == scenario.expected
     refusals = [
         step
