@@ -4863,7 +4863,8 @@ def _complexity(trial: _Trial) -> int:
 def _model_terms(fit: Identification) -> int:
     """How many parameters the effects of ``fit`` have together (:func:`_terms`). The candidates
     of a step all start from the same kept effects, so this orders them by what each adds."""
-    return sum(_terms(effect, fit) for effect in fit.effects)
+    fitted = sum(int(values.size) for values in fit.effect_parameters)
+    return fitted + sum(effect.searched for effect in fit.effects)
 
 
 def _terms(effect: Effect, fit: Identification) -> int:
