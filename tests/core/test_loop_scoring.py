@@ -6,7 +6,8 @@ what the 21 errors absorb (a local defect, a surface, a drift in time with no ma
 temperature) cannot be attributed by any method on that plan, and the loop is also counted right
 when it reports that line unexplained; these tests pin which effects that excuse covers. Nor
 can the readings choose between a kept effect and a rival of another place the report names
-beside it as fitting as well: a second score swaps such rivals in.
+beside it as fitting as well: a second score swaps such rivals in, and a third takes both
+excuses together.
 Squareness is scored as the angle between two axes, whatever share of it a model and a generator
 put in the straightness slopes.
 """
@@ -157,6 +158,28 @@ def test_a_surface_kept_in_place_of_an_equal_rival_the_report_names_is_right_up_
     # the same, with the truth not among the rivals: wrong
     outcome.effects_report[0] = _surface("Z", ("Y", "Z"), [_surface("X", ("X", "Z"))])
     assert not outcome.exact_up_to_named_rivals
+
+
+def test_a_rival_swap_and_a_one_line_effect_reported_unexplained_are_right_together() -> None:
+    # a surface kept in place of the equal rival the report names, beside a bump only y_linear
+    # shows that is reported unexplained there: neither excuse alone covers it, both together do
+    truth = ("cross_axis", "Y over Y×Z")
+    outcome = _outcome(
+        {truth: ["diag_yz_pp", "y_straight_z"], LOCAL: ["y_linear"]},
+        unexplained_where=["line y_linear at 120.3 mm"],
+    )
+    outcome.kept = {("cross_axis", "Z over Y×Z")}
+    outcome.effects_report = [_surface("Z", ("Y", "Z"), [_surface("Y", ("Y", "Z"))])]
+    assert not outcome.exact_up_to_named_rivals
+    assert not outcome.right_up_to_one_line_effects
+    assert outcome.right_up_to_rivals_and_one_line_effects
+    # the bump's line not reported: wrong, whatever the rivals
+    outcome.unexplained_where = ["line x_linear at 10.0 mm"]
+    assert not outcome.right_up_to_rivals_and_one_line_effects
+    # the truth not among the rivals: wrong
+    outcome.unexplained_where = ["line y_linear at 120.3 mm"]
+    outcome.effects_report = [_surface("Z", ("Y", "Z"), [_surface("X", ("X", "Z"))])]
+    assert not outcome.right_up_to_rivals_and_one_line_effects
 
 
 def test_two_kept_surfaces_cannot_both_stand_for_one_injected() -> None:

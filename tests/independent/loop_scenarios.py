@@ -314,24 +314,29 @@ class Outcome:
     def exact(self) -> bool:
         return self.kept == self.expected
 
-    @property
-    def exact_up_to_named_rivals(self) -> bool:
-        """The kept set is the injected one once some kept effects are swapped for a rival of
-        another place that report.json names beside them (``effects[].rivals``: it fits as well,
-        and the report says the plan cannot tell them apart).
-
-        Beside :attr:`exact`, never instead of it: it forgives a loop for a choice the readings
-        cannot make, as long as it names the injected effect among the equal fits."""
+    def _kept_up_to_rivals(self) -> list[set[tuple[str, str]]]:
+        """The kept set, and every set made of it by swapping kept effects for rivals of another
+        place that report.json names beside them (``effects[].rivals``: they fit as well, and
+        the report says the plan cannot tell them apart)."""
         options = [
             {effect_place(e)} | {effect_place(r) for r in e.get("rivals", {}).get("effects", [])}
             for e in self.effects_report
         ]
-        # two kept effects of one place (two bumps of one axis and direction) are exact as the
-        # strict row counts them; a rival stands in for one kept effect, never for two
-        return self.exact or any(
-            len(set(choice)) == len(choice) and set(choice) == self.expected
-            for choice in itertools.product(*options)
-        )
+        # two kept effects of one place (two bumps of one axis and direction) are the kept set as
+        # the strict row counts it; a rival stands in for one kept effect, never for two
+        swapped = [
+            set(choice) for choice in itertools.product(*options) if len(set(choice)) == len(choice)
+        ]
+        return [self.kept, *swapped]
+
+    @property
+    def exact_up_to_named_rivals(self) -> bool:
+        """The kept set is the injected one once some kept effects are swapped for a rival of
+        another place that report.json names beside them.
+
+        Beside :attr:`exact`, never instead of it: it forgives a loop for a choice the readings
+        cannot make, as long as it names the injected effect among the equal fits."""
+        return any(kept == self.expected for kept in self._kept_up_to_rivals())
 
     @property
     def misses(self) -> set[tuple[str, str]]:
@@ -370,16 +375,24 @@ class Outcome:
     def one_line_handling(self) -> dict[tuple[str, str], str]:
         """Per one-line effect: "kept" (as injected), else "unexplained" (a line that shows it
         is reported under report["unexplained"]), else "neither"."""
+        return self._one_line_handling(self.kept)
+
+    def _one_line_handling(self, kept: set[tuple[str, str]]) -> dict[tuple[str, str], str]:
         out = {}
         for effect in self.one_line_visible:
             lines = self.showing.get(f"{effect[0]} {effect[1]}", [])
-            if effect in self.kept:
+            if effect in kept:
                 out[effect] = "kept"
             elif any(on_line(w, name) for w in self.unexplained_where for name in lines):
                 out[effect] = "unexplained"
             else:
                 out[effect] = "neither"
         return out
+
+    def _right_up_to_one_line(self, kept: set[tuple[str, str]]) -> bool:
+        attributable = self.visible_expected - self.one_line_visible
+        handled = all(h != "neither" for h in self._one_line_handling(kept).values())
+        return attributable <= kept <= self.expected and handled
 
     @property
     def right_up_to_one_line_effects(self) -> bool:
@@ -389,9 +402,15 @@ class Outcome:
         Beside :attr:`exact`, never instead of it: it forgives a loop for refusing what no method
         can attribute on the plan, as long as it says where the readings disagree with the model.
         """
-        attributable = self.visible_expected - self.one_line_visible
-        handled = all(h != "neither" for h in self.one_line_handling.values())
-        return attributable <= self.kept <= self.expected and handled
+        return self._right_up_to_one_line(self.kept)
+
+    @property
+    def right_up_to_rivals_and_one_line_effects(self) -> bool:
+        """:attr:`right_up_to_one_line_effects` once some kept effects are swapped for rivals
+        the report names beside them (:attr:`exact_up_to_named_rivals`): both forgiveness
+        together, as one scenario may need both (a surface kept in place of its equal rival
+        beside a one-line bump reported unexplained). Beside :attr:`exact`, never instead."""
+        return any(self._right_up_to_one_line(kept) for kept in self._kept_up_to_rivals())
 
 
 def effect_place(effect: dict) -> tuple[str, str]:
