@@ -2460,12 +2460,18 @@ COURSE_ORDERS = 3
 COURSE_TAUS_S = (*np.geomspace(60.0, 180_000.0, 40), np.inf)
 
 
-def _course(
-    fit: Identification, line: int, along: FloatArray, settling: bool
-) -> tuple[float, float] | None:
+class _Course(NamedTuple):
+    """What :func:`_course` finds on a line."""
+
+    p: float  # false-alarm level of the course (beyond the settling one, with ``settling``)
+    swing: float  # RMS of that course, in the line's unit
+    tau_s: float  # the settling course's time constant (s; inf: a straight line; nan: none)
+
+
+def _course(fit: Identification, line: int, along: FloatArray, settling: bool) -> _Course | None:
     """Whether what ``fit`` leaves on ``line`` follows ``along`` (per reading of the line: a
-    shape along it) times a course in the line's time: (false-alarm level, RMS of that course in
-    the line's unit), None where the line has too few readings to tell.
+    shape along it) times a course in the line's time (:class:`_Course`), None where the line
+    has too few readings to tell.
 
     The line's per-target, per-direction means are removed first: what is locked to the
     position is the 21 errors' or another effect's, and the line's spread about them is the
@@ -2487,7 +2493,7 @@ def _course(
         _centred(cell, counts, along * special.eval_legendre(k, x))
         for k in range(1, COURSE_ORDERS + 1)
     ]
-    settled = 0.0
+    settled, tau = 0.0, float("nan")
     if settling:
         raw = [along * (t if np.isinf(tau) else -np.expm1(-t / tau)) for tau in COURSE_TAUS_S]
         courses = [_centred(cell, counts, v) for v in raw]
@@ -2497,8 +2503,9 @@ def _course(
             float(u @ y) ** 2 / float(u @ u) if float(u @ u) > 1e-9 * float(v @ v) else 0.0
             for u, v in zip(courses, raw, strict=True)
         ]
-        settled = max(gains)
-        columns = [courses[int(np.argmax(gains))], *columns]
+        settled, best = max(gains), int(np.argmax(gains))
+        tau = float(COURSE_TAUS_S[best])
+        columns = [courses[best], *columns]
     design = np.column_stack(columns)
     beta, *_ = np.linalg.lstsq(design, y, rcond=None)
     rest = y - design @ beta
@@ -2508,7 +2515,7 @@ def _course(
         return None
     p = float(special.fdtrc(COURSE_ORDERS, dof, gain / COURSE_ORDERS / noise))
     # the projections are nested: what the course adds beyond the settling one has norm² gain
-    return p, float(np.sqrt(gain / rows.size))
+    return _Course(p, float(np.sqrt(gain / rows.size)), tau)
 
 
 #: A set-up effect is a scale of its line where at least this share of what it adds along the
@@ -2545,21 +2552,21 @@ def _scales_in_time(fit: Identification, alpha: float) -> dict[int, tuple[str, f
     readings = fit.readings
     alone = _moving_one_axis(readings)
     out: dict[int, tuple[str, float, float, int]] = {}
-    by_axis: dict[str, list[tuple[int, tuple[float, float]]]] = {}
+    by_axis: dict[str, list[tuple[int, _Course]]] = {}
     for index, axis in alone:
         found = _course(fit, index, readings.target_mm[readings.line == index], settling=False)
         if found is None:
             continue
         by_axis.setdefault(axis, []).append((index, found))
-        if found[0] * len(alone) < alpha:
-            out[index] = (axis, *found, 1)
+        if found.p * len(alone) < alpha:
+            out[index] = (axis, found.p, found.swing, 1)
     for axis, tests in by_axis.items():
-        statistic = -2.0 * sum(np.log(max(p, 1e-300)) for _, (p, _) in tests)
+        statistic = -2.0 * sum(np.log(max(found.p, 1e-300)) for _, found in tests)
         combined = float(special.chdtrc(2 * len(tests), statistic))
         if combined * len(by_axis) < alpha:
-            for index, (p, swing) in tests:
-                if p < COMBINED_LINE_LEVEL:
-                    out.setdefault(index, (axis, combined, swing, len(tests)))
+            for index, found in tests:
+                if found.p < COMBINED_LINE_LEVEL:
+                    out.setdefault(index, (axis, combined, found.swing, len(tests)))
     return out
 
 
@@ -2583,7 +2590,7 @@ def _unsteady_scales(
 
 def _settling_lines(
     fit: Identification, moving: dict[int, tuple[str, float, float, int]], alpha: float
-) -> list[int]:
+) -> dict[int, float]:
     """The lines of ``moving`` (:func:`_scales_in_time`) whose scale settles in time: the course
     they follow is one a settling course (1 − e^(−t/τ), or a straight line in time) takes,
     nothing further following beside it at ``alpha``. A drift that such a line alone shows
@@ -2591,14 +2598,37 @@ def _settling_lines(
     effect on that line alone (blind 42166: a surface EX over X×Y taken out by the audit for
     x_linear's size alone, beside a drift of X that only x_linear shows). A scale that swings
     back within the line follows more than a settling course and still counts against the
-    effects that took it."""
+    effects that took it. Per line: the time constant of the settling course it follows (s;
+    :class:`_Course`; nan where nothing beyond that course is left to tell it by)."""
     readings = fit.readings
-    out = []
+    out = {}
     for index in moving:
         beyond = _course(fit, index, readings.target_mm[readings.line == index], settling=True)
-        if beyond is None or beyond[0] >= alpha:
-            out.append(index)
+        if beyond is None or beyond.p >= alpha:
+            out[index] = float("nan") if beyond is None else beyond.tau_s
     return out
+
+
+#: A settling course has settled after this many of its time constants (e⁻⁵: 0.7 % of its
+#: change is still to come; :func:`_settled_at`).
+SETTLED_TAUS = 5.0
+
+
+def _settled_at(
+    moving: dict[int, tuple[str, float, float, int]], settling: dict[int, float]
+) -> dict[str, float]:
+    """Per axis whose every line that changes in time (``moving``) settles at a time constant
+    found (``settling``, :func:`_settling_lines`): the session time (s) by which its scale has
+    settled, :data:`SETTLED_TAUS` of the longest of them after the session's first reading (the
+    settling course runs from there)."""
+    taus: dict[str, list[float]] = {}
+    for index, (axis, *_) in moving.items():
+        taus.setdefault(axis, []).append(settling.get(index, float("nan")))
+    return {
+        axis: SETTLED_TAUS * max(values)
+        for axis, values in taus.items()
+        if all(np.isfinite(values))
+    }
 
 
 def _scale_in_time(
@@ -2606,6 +2636,7 @@ def _scale_in_time(
     effect: Effect,
     contribution: FloatArray,
     unsteady: dict[str, tuple[float, Line, float, int]],
+    settled_at: dict[str, float],
 ) -> str | None:
     """Why a kept set-up effect of a linear line is taken out by the audit: with every kept
     effect in ``current``, an axis the line moves changes its scale in time beyond what the
@@ -2620,12 +2651,25 @@ def _scale_in_time(
     followed a course in time at 10⁻²⁴ false alarm. A drift the model lacks leaves such a course
     too, until it is kept: judged at a step, the right offsets of blind 38111 and 38167 were
     refused while their drifts were missing or not yet placed at their time constants.
+
+    An axis whose changing lines all settle, by a time (``settled_at``, :func:`_settled_at`)
+    before the line's first reading, had one scale while the line was measured, the one the
+    lines read after the change hold: its change is no reason against the set-up. Indep.
+    5100126 (a drift of X of τ 20 min that x_linear alone shows, 0–23 min into the session,
+    beside a cosine error of diag_xy_pp, 631–663 min): the backward pass took the drift out
+    (held out, no line predicts x_linear's course), then the audit took out the cosine error
+    for x_linear's course, and seven lines were reported.
     """
     readings = current.readings
     line = readings.lines[effect.line_index]  # type: ignore[index]
     if line.spec.quantity != "linear":
         return None
-    axes = [axis for axis in _moved(line.spec) if axis in unsteady]
+    start = float(readings.time_s[readings.line == effect.line_index].min())
+    axes = [
+        axis
+        for axis in _moved(line.spec)
+        if axis in unsteady and start < settled_at.get(axis, np.inf)
+    ]
     if not axes:
         return None
     rows = readings.line == effect.line_index
@@ -2673,9 +2717,9 @@ def _off_course(fit: Identification, index: int, alpha: float) -> str | None:
     worst: tuple[float, Line, float] | None = None
     for line in lines:
         found = _course(fit, line, shape[readings.line == line], settling=True)
-        if found is not None and found[0] * len(lines) < alpha:
-            if worst is None or found[0] < worst[0]:
-                worst = (found[0], readings.lines[line], found[1])
+        if found is not None and found.p * len(lines) < alpha:
+            if worst is None or found.p < worst[0]:
+                worst = (found.p, readings.lines[line], found.swing)
     if worst is None:
         return None
     p, line_of, swing = worst
@@ -5441,6 +5485,7 @@ def _audit(
         moving = _scales_in_time(current, options.alpha)
         unsteady = _unsteady_scales(current, moving)
         settling = _settling_lines(current, moving, options.alpha)
+        settled_at = _settled_at(moving, settling)
         for index, effect in enumerate(current.effects):
             assert isinstance(effect, Effect)
             values = current.effect_parameters[index]
@@ -5458,7 +5503,7 @@ def _audit(
                     why = _read_long_beside(current, effect, options.alpha)
                 if why is None:
                     contribution = effect.design(current.readings, current.model) @ values
-                    why = _scale_in_time(current, effect, contribution, unsteady)
+                    why = _scale_in_time(current, effect, contribution, unsteady, settled_at)
                 if why is not None:
                     failures.append((1, np.inf, effect, why))
                 continue
@@ -5475,7 +5520,7 @@ def _audit(
                     failures.append((1, np.inf, effect, why))
                     continue
             contribution = effect.design(current.readings, current.model) @ values
-            change = _Sizes(current, index, contribution, settling).by_line()
+            change = _Sizes(current, index, contribution, list(settling)).by_line()
             why = _unequal(change, options)
             if why is not None:
                 failures.append((0, change.spread, effect, why))

@@ -192,6 +192,34 @@ def test_an_effect_the_audit_took_out_does_not_win_the_same_step_again() -> None
     assert any(s["step"] > drift and not s["kept"] for s in cosine), verdicts
 
 
+def test_a_scale_that_settled_before_a_line_was_measured_does_not_take_its_set_up_error() -> None:
+    """Seed 5100126 (block 5100000, demo plan): a surface EX over X×Y, a drift of X (7.7 ppm,
+    τ 20 min) and a cosine error of diag_xy_pp. Only x_linear, 0–23 min into the session, was
+    measured while the X scale moved; diag_xy_pp was measured 631–663 min in. The backward pass
+    took the drift out (no held-out line predicts x_linear's course), then the audit took the
+    cosine error out for that course, and seven lines were reported. The X scale had settled
+    long before diag_xy_pp's first reading: the cosine error stays, and x_linear, which alone
+    shows the drift, is reported."""
+    scenario = make_scenario(5100126)
+    report = _loop_report(scenario)
+    assert scenario.expected == {
+        ("cross_axis", "X over X×Y"),
+        ("thermal_drift", "X"),
+        ("cosine", "diag_xy_pp"),
+    }
+    assert {effect_place(e) for e in report["effects"]} == {
+        ("cross_axis", "X over X×Y"),
+        ("cosine", "diag_xy_pp"),
+    }
+    audited = [s for s in report["loop"] if s["stage"] == "audit"]
+    assert not any(s["effect"]["kind"] == "cosine" for s in audited), audited
+    # injected: a beam 3528 µrad off, −6.22 ppm (½θ²); the fitted scale within 3 of its stated
+    # standard uncertainties (0.1 ppm) of it
+    (cosine,) = [e["parameters"] for e in report["effects"] if e["kind"] == "cosine"]
+    assert abs(cosine["scale_ppm"] - (-0.5 * 3528.012**2 * 1e-6)) < 3 * cosine["scale_std_ppm"]
+    assert any(u["where"].startswith("line x_linear at") for u in report["unexplained"])
+
+
 @pytest.mark.parametrize(("seed", "line"), [(3500036, "x_linear"), (3500071, "z_linear_far")])
 def test_a_set_up_error_fitted_within_its_uncertainty_of_nothing_is_not_kept(
     seed: int, line: str
