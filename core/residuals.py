@@ -2493,7 +2493,7 @@ def _course(fit: Identification, line: int, along: FloatArray, settling: bool) -
         _centred(cell, counts, along * special.eval_legendre(k, x))
         for k in range(1, COURSE_ORDERS + 1)
     ]
-    settled, tau = 0.0, float("nan")
+    settled, settling_tau = 0.0, float("nan")
     if settling:
         raw = [along * (t if np.isinf(tau) else -np.expm1(-t / tau)) for tau in COURSE_TAUS_S]
         courses = [_centred(cell, counts, v) for v in raw]
@@ -2504,7 +2504,7 @@ def _course(fit: Identification, line: int, along: FloatArray, settling: bool) -
             for u, v in zip(courses, raw, strict=True)
         ]
         settled, best = max(gains), int(np.argmax(gains))
-        tau = float(COURSE_TAUS_S[best])
+        settling_tau = float(COURSE_TAUS_S[best])
         columns = [courses[best], *columns]
     design = np.column_stack(columns)
     beta, *_ = np.linalg.lstsq(design, y, rcond=None)
@@ -2515,7 +2515,7 @@ def _course(fit: Identification, line: int, along: FloatArray, settling: bool) -
         return None
     p = float(special.fdtrc(COURSE_ORDERS, dof, gain / COURSE_ORDERS / noise))
     # the projections are nested: what the course adds beyond the settling one has norm² gain
-    return _Course(p, float(np.sqrt(gain / rows.size)), tau)
+    return _Course(p, float(np.sqrt(gain / rows.size)), settling_tau)
 
 
 #: A set-up effect is a scale of its line where at least this share of what it adds along the
