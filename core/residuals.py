@@ -2599,7 +2599,8 @@ def _settling_lines(
     x_linear's size alone, beside a drift of X that only x_linear shows). A scale that swings
     back within the line follows more than a settling course and still counts against the
     effects that took it. Per line: the time constant of the settling course it follows (s;
-    :class:`_Course`; nan where nothing beyond that course is left to tell it by)."""
+    :class:`_Course`; nan where the line has too few readings, or the settling course leaves
+    nothing beside it, to tell)."""
     readings = fit.readings
     out = {}
     for index in moving:
@@ -2615,20 +2616,24 @@ SETTLED_TAUS = 5.0
 
 
 def _settled_at(
-    moving: dict[int, tuple[str, float, float, int]], settling: dict[int, float]
+    fit: Identification,
+    moving: dict[int, tuple[str, float, float, int]],
+    settling: dict[int, float],
 ) -> dict[str, float]:
-    """Per axis whose every line that changes in time (``moving``) settles at a time constant
-    found (``settling``, :func:`_settling_lines`): the session time (s) by which its scale has
-    settled, :data:`SETTLED_TAUS` of the longest of them after the session's first reading (the
-    settling course runs from there)."""
-    taus: dict[str, list[float]] = {}
-    for index, (axis, *_) in moving.items():
-        taus.setdefault(axis, []).append(settling.get(index, float("nan")))
-    return {
-        axis: SETTLED_TAUS * max(values)
-        for axis, values in taus.items()
-        if all(np.isfinite(values))
-    }
+    """Per axis whose every line that changes in time (``moving``) does so on its own test and
+    follows a settling course at a time constant found (``settling``, :func:`_settling_lines`):
+    the session time (s) after which its scale stood still, the later of :data:`SETTLED_TAUS` of
+    the longest of those time constants after the session's first reading (the settling course
+    runs from there) and the last reading of every line that changes (the change is seen up to
+    there, whatever time constant its shape within the line took). An axis whose lines change
+    only together (Fisher's combination) swings over the session: it is given no such time."""
+    readings = fit.readings
+    until: dict[str, list[float]] = {}
+    for index, (axis, _, _, lines) in moving.items():
+        tau = settling.get(index, float("nan")) if lines == 1 else float("nan")
+        end = float(readings.time_s[readings.line == index].max())
+        until.setdefault(axis, []).append(max(SETTLED_TAUS * tau, end))
+    return {axis: max(times) for axis, times in until.items() if all(np.isfinite(times))}
 
 
 def _scale_in_time(
@@ -2653,8 +2658,8 @@ def _scale_in_time(
     refused while their drifts were missing or not yet placed at their time constants.
 
     An axis whose changing lines all settle, by a time (``settled_at``, :func:`_settled_at`)
-    before the line's first reading, had one scale while the line was measured, the one the
-    lines read after the change hold: its change is no reason against the set-up. Indep.
+    before the line's first reading, had stopped changing when the line was measured, by the
+    settling course those lines follow: its change is no reason against the set-up. Indep.
     5100126 (a drift of X of τ 20 min that x_linear alone shows, 0–23 min into the session,
     beside a cosine error of diag_xy_pp, 631–663 min): the backward pass took the drift out
     (held out, no line predicts x_linear's course), then the audit took out the cosine error
@@ -2664,7 +2669,8 @@ def _scale_in_time(
     line = readings.lines[effect.line_index]  # type: ignore[index]
     if line.spec.quantity != "linear":
         return None
-    start = float(readings.time_s[readings.line == effect.line_index].min())
+    rows = readings.line == effect.line_index
+    start = float(readings.time_s[rows].min())
     axes = [
         axis
         for axis in _moved(line.spec)
@@ -2672,7 +2678,6 @@ def _scale_in_time(
     ]
     if not axes:
         return None
-    rows = readings.line == effect.line_index
     along = readings.target_mm[rows]
     values = contribution[rows] - contribution[rows].mean()
     energy = float(values @ values)
@@ -5485,7 +5490,7 @@ def _audit(
         moving = _scales_in_time(current, options.alpha)
         unsteady = _unsteady_scales(current, moving)
         settling = _settling_lines(current, moving, options.alpha)
-        settled_at = _settled_at(moving, settling)
+        settled_at = _settled_at(current, moving, settling)
         for index, effect in enumerate(current.effects):
             assert isinstance(effect, Effect)
             values = current.effect_parameters[index]
