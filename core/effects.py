@@ -449,7 +449,8 @@ class CrossAxis(Effect):
         low, high = self.machine.stroke(axis)
         return (2.0 * q[:, AXIS_INDEX[axis]] - low - high) / (high - low)
 
-    def _shape(self, q: FloatArray) -> FloatArray:
+    def shape(self, q: FloatArray) -> FloatArray:
+        """The shape functions at machine positions ``q`` (rows), one column per term."""
         from numpy.polynomial import legendre
 
         s = self._scaled(q, self.along)
@@ -465,20 +466,28 @@ class CrossAxis(Effect):
 
     def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
         k = AXIS_INDEX[self.direction]
-        return _displacement(readings, k)[:, None] * self._shape(readings.position_mm)
+        return _displacement(readings, k)[:, None] * self.shape(readings.position_mm)
 
-    def _surface(self, values: FloatArray, count: int = 21) -> FloatArray:
-        assert self.machine is not None
-        a = np.linspace(*self.machine.stroke(self.along), count)
-        b = np.linspace(*self.machine.stroke(self.across), count)
+    def grid(self, machine: Machine, count: int = 21) -> FloatArray:
+        """Machine positions (rows) on a ``count`` × ``count`` grid over the pair's strokes,
+        the third axis at zero."""
+        a = np.linspace(*machine.stroke(self.along), count)
+        b = np.linspace(*machine.stroke(self.across), count)
         q = np.zeros((count * count, 3))
         aa, bb = np.meshgrid(a, b, indexing="ij")
         q[:, AXIS_INDEX[self.along]] = aa.ravel()
         q[:, AXIS_INDEX[self.across]] = bb.ravel()
-        return np.asarray(self._shape(q) @ values)
+        return q
+
+    def _surface(self, values: FloatArray, count: int = 21) -> FloatArray:
+        assert self.machine is not None
+        return np.asarray(self.shape(self.grid(self.machine, count)) @ values)
 
     def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
-        surface = self._surface(values)
+        assert self.machine is not None
+        design = self.shape(self.grid(self.machine))
+        surface = design @ values
+        variance = np.einsum("ij,jk,ik->i", design, covariance, design)
         return {
             "depends_on": [self.along, self.across],
             "order": self.order,
@@ -488,6 +497,9 @@ class CrossAxis(Effect):
             "coefficients_std_um": [_std(covariance, i) for i in range(len(values))],
             "peak_um": float(np.max(np.abs(surface))),
             "rms_um": float(np.sqrt(np.mean(surface**2))),
+            # the surface's standard uncertainty, RMS over the pair's strokes; a shape the plan
+            # does not settle between orders is in it (core/residuals.py, _unsettled)
+            "rms_std_um": float(np.sqrt(max(float(np.mean(variance)), 0.0))),
         }
 
     def magnitude_um(self, values: FloatArray) -> float:
@@ -502,7 +514,7 @@ class CrossAxis(Effect):
     def error_um(self, values, machine, positions_mm, approach=None, time_s=None):  # type: ignore[no-untyped-def]
         q = np.atleast_2d(positions_mm)
         e = np.zeros_like(q, dtype=float)
-        e[:, AXIS_INDEX[self.direction]] = self._shape(q) @ values
+        e[:, AXIS_INDEX[self.direction]] = self.shape(q) @ values
         return e
 
 

@@ -666,3 +666,26 @@ def test_a_refit_within_its_uncertainty_of_nothing_is_refused_on_its_wald_statis
     why = _indistinguishable_from_nothing(np.array([1.0, 1.0]), correlated)
     assert why is not None and "Wald χ² 1.05 on 2 parameters" in why
     assert _indistinguishable_from_nothing(np.array([1.0, -1.0]), correlated) is None
+
+
+def test_a_surface_states_its_standard_uncertainty_in_micrometres_over_its_strokes() -> None:
+    """report.json's cross-axis effect carries ``rms_std_um``: its standard uncertainty, RMS over
+    a 21 × 21 grid of the pair's strokes. Order 4 without lever-arm terms is the one term
+    P2(s)·P2(t), P2(u) = (3u² − 1)/2 with s, t scaled to [−1, 1]; a coefficient of standard
+    uncertainty σ gives σ·√(mean P2(s)²·mean P2(t)²) on the grid's even spacing."""
+    from volucal.core.effects import CrossAxis
+    from volucal.core.machine import Machine
+
+    machine = Machine(
+        name="t",
+        stroke_mm={"X": (0, 400), "Y": (-100, 300), "Z": (0, 350)},
+        tool_offset_mm=(0, 0, 0),
+    )
+    surface = CrossAxis(direction="Z", along="X", across="Y", machine=machine, order=4)
+    assert surface.term_names == ("P2(X)·P2(Y)",)
+    u = np.linspace(-1.0, 1.0, 21)
+    p2_mean_square = float(np.mean(((3 * u**2 - 1) / 2) ** 2))
+    sigma = 0.3
+    parameters = surface.parameters(np.array([2.0]), np.array([[sigma**2]]))
+    assert parameters["rms_std_um"] == pytest.approx(sigma * p2_mean_square, rel=1e-12)
+    assert parameters["rms_um"] == pytest.approx(2.0 * p2_mean_square, rel=1e-12)

@@ -604,31 +604,70 @@ def _single_axis_truth(scenario: Scenario, eid: str, q: np.ndarray) -> np.ndarra
     return total
 
 
+def _folded(result, eid: str, q: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:  # type: ignore[no-untyped-def]
+    """The kept effects folded into ``eid`` (E<d><a>) along axis a on the line through the
+    middle of the other strokes, as :func:`_single_axis_truth` folds the truth's: cycles and
+    local defects of a in d, and surfaces in d over a and another axis. Each as its fitted
+    values, the columns (one per value) of its error in d at q (its error is linear in its
+    values once a period, a place or a time constant is chosen) and its stated covariance."""
+    if eid[1] not in AXES:
+        return []
+    model = result.final.model
+    d, a = AXES.index(eid[1]), eid[2]
+    stroke = {axis: model.machine.stroke(axis) for axis in AXES}
+    states = fold_states(stroke, a, q)
+    out = []
+    fitted = zip(
+        result.final.effects,
+        result.final.effect_parameters,
+        result.final.effect_covariances,
+        strict=True,
+    )
+    for effect, values, covariance in fitted:
+        surface = effect.kind == "cross_axis" and a in (effect.along, effect.across)
+        if (effect.kind in ("cyclic", "local") and effect.axis == a) or surface:
+            columns = np.stack(
+                [
+                    effect.error_um(unit, model.machine, states)[:, d]
+                    for unit in np.eye(len(values))
+                ],
+                axis=1,
+            )
+            out.append((np.asarray(values, dtype=float), columns, covariance))
+    return out
+
+
 def _single_axis_model(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
-    """volucal's counterpart of :func:`_single_axis_truth`, and the function's standard
-    uncertainty at q (the final fit's covariance)."""
+    """volucal's counterpart of :func:`_single_axis_truth`, and its standard uncertainty at q:
+    the function's (the final fit's covariance) and that of every kept effect folded into it
+    (their stated covariances; the fit states no covariance between an effect and the 21
+    errors, so the two add as if independent)."""
     model = result.final.model
     total = model.functions[eid](q).astype(float)
-    if eid[1] in AXES:
-        d, a = AXES.index(eid[1]), eid[2]
-        stroke = {axis: model.machine.stroke(axis) for axis in AXES}
-        states = fold_states(stroke, a, q)
-        for effect, values in zip(
-            result.final.effects, result.final.effect_parameters, strict=True
-        ):
-            surface = effect.kind == "cross_axis" and a in (effect.along, effect.across)
-            if (effect.kind in ("cyclic", "local") and effect.axis == a) or surface:
-                total = total + effect.error_um(values, model.machine, states)[:, d]
     sl = model.parameter_slices[eid]
     design = model.functions[eid].basis.design(q)
     variance = np.einsum("ij,jk,ik->i", design, result.final.covariance[sl, sl], design)
+    for values, columns, folded in _folded(result, eid, q):
+        total = total + columns @ values
+        variance = variance + np.einsum("ij,jk,ik->i", columns, folded, columns)
     return total, np.sqrt(np.maximum(variance, 0.0))
+
+
+def _gauge_design(design: np.ndarray, q: np.ndarray, straightness: bool) -> np.ndarray:
+    """Columns of a function's (or a folded effect's) design with the gauges :func:`_gauged`
+    removes taken out: a straightness's least-squares slope over q, then the value at the
+    start."""
+    if straightness:
+        centred = (q - q.mean()) / np.sum((q - q.mean()) ** 2)
+        design = design - np.outer(q, centred @ design)
+    return design - design[0]
 
 
 def expected_errors(result) -> dict[str, float]:  # type: ignore[no-untyped-def]
     """Per identified function, the RMS error over its stroke (gauge removed as
-    :func:`_gauged` removes it) that its stated covariance alone predicts, √(tr(G D C Dᵀ Gᵀ)/n);
-    per squareness, its stated standard uncertainty. What an unbiased fit with those bands
+    :func:`_gauged` removes it) that its stated covariance alone predicts, √(tr(G D C Dᵀ Gᵀ)/n),
+    with the kept effects folded into it as :func:`_single_axis_model` folds them; per
+    squareness, its stated standard uncertainty. What an unbiased fit with those bands
     would miss the truth by: where it is near the bound, no fit of that plan and noise meets the
     bound reliably."""
     model, covariance = result.final.model, result.final.covariance
@@ -640,13 +679,12 @@ def expected_errors(result) -> dict[str, float]:  # type: ignore[no-untyped-def]
             continue
         low, high = model.machine.stroke(eid[2])
         q = np.linspace(low, high, 161)
-        design = model.functions[eid].basis.design(q)
-        if eid[1] in AXES and eid[1] != eid[2]:
-            # the least-squares slope over q, then the value at the start
-            centred = (q - q.mean()) / np.sum((q - q.mean()) ** 2)
-            design = design - np.outer(q, centred @ design)
-        design = design - design[0]
+        straightness = eid[1] in AXES and eid[1] != eid[2]
+        design = _gauge_design(model.functions[eid].basis.design(q), q, straightness)
         variance = np.einsum("ij,jk,ik->i", design, covariance[sl, sl], design)
+        for _, columns, folded in _folded(result, eid, q):
+            columns = _gauge_design(columns, q, straightness)
+            variance = variance + np.einsum("ij,jk,ik->i", columns, folded, columns)
         out[eid] = float(np.sqrt(max(np.mean(variance), 0.0)))
     return out
 
