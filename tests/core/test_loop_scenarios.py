@@ -243,6 +243,20 @@ def test_a_surface_whose_order_the_lines_do_not_settle_states_the_spread_between
     assert surface["rms_std_um"] >= 1.0, surface["rms_std_um"]
 
 
+def test_a_cycle_is_placed_with_the_harmonic_it_is_fitted_with_and_leaves_no_bump() -> None:
+    """Seed 5300140 (block 5300000, demo plan): a pure 51.5 mm cycle of X, 4.6 µm. Fitted with a
+    second harmonic (the stronger finding), its period came from the search's pure sine: the
+    phase slipped over the stroke and a bump of X was kept beside it. Placed with its harmonic,
+    the cycle is all that is kept."""
+    scenario = make_scenario(5300140)
+    assert scenario.expected == {("cyclic", "X")}
+    report = _loop_report(scenario)
+    (kept,) = report["effects"]
+    assert (kept["kind"], kept["axis"]) == ("cyclic", "X"), report["effects"]
+    (truth,) = scenario.effects
+    assert kept["parameters"]["period_mm"] == pytest.approx(truth.parameters["period"], rel=2e-4)
+
+
 @pytest.mark.parametrize(("seed", "line"), [(3500036, "x_linear"), (3500071, "z_linear_far")])
 def test_a_set_up_error_fitted_within_its_uncertainty_of_nothing_is_not_kept(
     seed: int, line: str
