@@ -604,52 +604,69 @@ def _single_axis_truth(scenario: Scenario, eid: str, q: np.ndarray) -> np.ndarra
     return total
 
 
-def _folded(result, eid: str, q: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:  # type: ignore[no-untyped-def]
-    """The kept effects folded into ``eid`` (E<d><a>) along axis a on the line through the
-    middle of the other strokes, as :func:`_single_axis_truth` folds the truth's: cycles and
-    local defects of a in d, and surfaces in d over a and another axis. Each as its fitted
-    values, the columns (one per value) of its error in d at q (its error is linear in its
-    values once a period, a place or a time constant is chosen) and its stated covariance."""
-    if eid[1] not in AXES:
-        return []
-    model = result.final.model
-    d, a = AXES.index(eid[1]), eid[2]
-    stroke = {axis: model.machine.stroke(axis) for axis in AXES}
-    states = fold_states(stroke, a, q)
-    out = []
-    fitted = zip(
-        result.final.effects,
-        result.final.effect_parameters,
-        result.final.effect_covariances,
-        strict=True,
-    )
-    for effect, values, covariance in fitted:
-        surface = effect.kind == "cross_axis" and a in (effect.along, effect.across)
-        if (effect.kind in ("cyclic", "local") and effect.axis == a) or surface:
-            columns = np.stack(
-                [
-                    effect.error_um(unit, model.machine, states)[:, d]
-                    for unit in np.eye(len(values))
-                ],
-                axis=1,
-            )
-            out.append((np.asarray(values, dtype=float), columns, covariance))
-    return out
+def _folded(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
+    """The function ``eid`` (E<d><a>) along axis a on the line through the middle of the other
+    strokes with the kept effects folded into it as :func:`_single_axis_truth` folds the
+    truth's (cycles and local defects of a in d, surfaces in d over a and another axis): what
+    the folded effects add at q, the design at q over the function's parameters and every
+    folded effect's (an effect's error is
+    linear in its values once a period, a place or a time constant is chosen), and their joint
+    stated covariance — each block as the final fit states it (the 21 errors' and the effects'
+    own, with what the plan leaves open), and between blocks from the fit's normal inverse."""
+    from volucal.core.identify_system import Gauge
+
+    fit = result.final
+    model = fit.model
+    sl = model.parameter_slices[eid]
+    designs = [model.functions[eid].basis.design(q)]
+    folded: list[int] = []
+    added = np.zeros(len(q))
+    if eid[1] in AXES:
+        d, a = AXES.index(eid[1]), eid[2]
+        stroke = {axis: model.machine.stroke(axis) for axis in AXES}
+        states = fold_states(stroke, a, q)
+        for index, (effect, values) in enumerate(
+            zip(fit.effects, fit.effect_parameters, strict=True)
+        ):
+            surface = effect.kind == "cross_axis" and a in (effect.along, effect.across)
+            if (effect.kind in ("cyclic", "local") and effect.axis == a) or surface:
+                units = np.eye(len(values))
+                designs.append(
+                    np.stack(
+                        [effect.error_um(u, model.machine, states)[:, d] for u in units], axis=1
+                    )
+                )
+                added = added + designs[-1] @ np.asarray(values, dtype=float)
+                folded.append(index)
+    sizes = [m.shape[1] for m in designs]
+    at = np.cumsum([0, *sizes])
+    covariance = np.zeros((at[-1], at[-1]))
+    covariance[: at[1], : at[1]] = fit.covariance[sl, sl]
+    for k, index in enumerate(folded, start=1):
+        covariance[at[k] : at[k + 1], at[k] : at[k + 1]] = fit.effect_covariances[index]
+    columns = [b.columns for b in fit.system.blocks if b.kind == "effect"]
+    if folded and len(columns) == len(fit.effects):
+        joint = fit.normal_inverse * fit.sigma_scale**2
+        gauge = Gauge.for_model(model).matrix
+        size = gauge.shape[1]
+        for k, index in enumerate(folded, start=1):
+            cross = gauge[sl] @ joint[:size, columns[index]]
+            covariance[: at[1], at[k] : at[k + 1]] = cross
+            covariance[at[k] : at[k + 1], : at[1]] = cross.T
+            for m, other in enumerate(folded[k:], start=k + 1):
+                between = joint[columns[index], columns[other]]
+                covariance[at[k] : at[k + 1], at[m] : at[m + 1]] = between
+                covariance[at[m] : at[m + 1], at[k] : at[k + 1]] = between.T
+    return added, np.concatenate(designs, axis=1), covariance
 
 
 def _single_axis_model(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
     """volucal's counterpart of :func:`_single_axis_truth`, and its standard uncertainty at q:
-    the function's (the final fit's covariance) and that of every kept effect folded into it
-    (their stated covariances; the fit states no covariance between an effect and the 21
-    errors, so the two add as if independent)."""
-    model = result.final.model
-    total = model.functions[eid](q).astype(float)
-    sl = model.parameter_slices[eid]
-    design = model.functions[eid].basis.design(q)
-    variance = np.einsum("ij,jk,ik->i", design, result.final.covariance[sl, sl], design)
-    for values, columns, folded in _folded(result, eid, q):
-        total = total + columns @ values
-        variance = variance + np.einsum("ij,jk,ik->i", columns, folded, columns)
+    the function's with every kept effect folded into it, from their joint stated covariance
+    (:func:`_folded`)."""
+    added, design, covariance = _folded(result, eid, q)
+    total = result.final.model.functions[eid](q).astype(float) + added
+    variance = np.einsum("ij,jk,ik->i", design, covariance, design)
     return total, np.sqrt(np.maximum(variance, 0.0))
 
 
@@ -680,11 +697,9 @@ def expected_errors(result) -> dict[str, float]:  # type: ignore[no-untyped-def]
         low, high = model.machine.stroke(eid[2])
         q = np.linspace(low, high, 161)
         straightness = eid[1] in AXES and eid[1] != eid[2]
-        design = _gauge_design(model.functions[eid].basis.design(q), q, straightness)
-        variance = np.einsum("ij,jk,ik->i", design, covariance[sl, sl], design)
-        for _, columns, folded in _folded(result, eid, q):
-            columns = _gauge_design(columns, q, straightness)
-            variance = variance + np.einsum("ij,jk,ik->i", columns, folded, columns)
+        _, design, joint = _folded(result, eid, q)
+        design = _gauge_design(design, q, straightness)
+        variance = np.einsum("ij,jk,ik->i", design, joint, design)
         out[eid] = float(np.sqrt(max(np.mean(variance), 0.0)))
     return out
 
