@@ -4680,14 +4680,16 @@ UNSETTLED_RATIO = 3.0
 def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     """What the kept surface's shape leaves open: its rivals of the same direction and pair
     (another order, with or without lever-arm terms) that pass and predict the held-out data as
-    well (within ``tie``, or no worse line by line: :func:`_worse_on_lines`) are fits the plan
-    cannot rank below it.
+    well (within ``tie``, or not worse by :func:`_worse_on_lines`) are fits the plan cannot rank
+    below it.
 
     Returned: a warning when the 21 errors fitted beside the rival that moves them most differ
     from the kept fit's by more than :data:`UNSETTLED_RATIO` stated standard uncertainties, and
     that difference of the errors' parameters (zeros without a rival). The two fits are equally
     good descriptions, so the errors' covariance gains half its outer product (the spread of an
-    even choice between them about the kept one): the bands then say what the plan settles."""
+    even choice between them about the kept one): the bands then say what the plan settles.
+    With it, the move of the surface's own coefficients to that rival's
+    (:func:`_surface_move`)."""
     effect = chosen.finding.effect
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, CrossAxis):
