@@ -3230,8 +3230,8 @@ class _State:
     #: per kept surface or set-up effect: how the 21 errors' parameters move to each rival that
     #: fits as well, one per row (zero rows where none moves them beyond their uncertainty)
     shape_doubt: dict[EffectKey, FloatArray] = field(default_factory=dict)
-    #: per kept surface: how its own coefficients move to the rival of its place that fits as
-    #: well and differs from it most (:func:`_unsettled`; absent where it has none)
+    #: per kept surface: how its own coefficients move to the rival of its place whose move of
+    #: the 21 errors :func:`_unsettled` takes (absent where it has none)
     surface_doubt: dict[EffectKey, FloatArray] = field(default_factory=dict)
     #: per kept effect that has any: its rivals of another place that fit as well (report.json
     #: ``effects[].rivals``: the kept fit's score and :func:`_rival_report` of each)
@@ -4554,8 +4554,8 @@ class _Doubt(NamedTuple):
     #: rivals of another place (a surface's direction and pair, a set-up's line or kind) that
     #: fit as well: each may be the effect the machine has
     rivals: tuple[_Trial, ...] = ()
-    #: the move of a kept surface's own coefficients to the rival of its place that differs
-    #: from it most (:func:`_unsettled`), None where there is none
+    #: the move of a kept surface's own coefficients to the rival of its place whose move of
+    #: the 21 errors is taken (:func:`_unsettled`), None where there is none
     surface_move: FloatArray | None = None
 
 
@@ -4790,9 +4790,10 @@ def _surface_move(chosen: _Trial, rival: _Trial) -> FloatArray | None:
     None where it does not move."""
     effect, values = _kept_surface(chosen)
     assert effect.machine is not None
-    design = effect.shape(effect.grid(effect.machine))
+    grid = effect.grid(effect.machine)
+    design = effect.shape(grid)
     other, other_values = _kept_surface(rival)
-    difference = other.shape(effect.grid(effect.machine)) @ other_values - design @ values
+    difference = other.shape(grid) @ other_values - design @ values
     move = np.asarray(np.linalg.lstsq(design, difference, rcond=None)[0], dtype=float)
     return move if np.any(move) else None
 
