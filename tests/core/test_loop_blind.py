@@ -609,6 +609,27 @@ def test_a_cycle_with_its_second_harmonic_is_placed_with_it_and_leaves_no_bump()
     assert not report["unexplained"], report["unexplained"]
 
 
+def test_a_bump_diagonals_put_on_either_axis_is_kept_on_the_one_no_line_contradicts() -> None:
+    # demo plan, 0.055 µm noise: a triangular bump of X in X (4.5 µm, 37 mm wide at half height,
+    # at 318 mm). The free profile left its foot at 282 mm, which three XZ diagonals cross at
+    # Z = 247 mm: a bump of Z in X there fitted it 0.2 % better than one of X and was kept, though
+    # the diagonal descending in Z crosses Z = 247 mm at X = 118 mm, showed it with 17.4 σ² and
+    # lost 14.7 σ² held out. A line that shows a shape and is predicted worse with it refuses it
+    report, truth = _loop(54062)
+    (bump,) = truth["effects"]
+    assert (bump["kind"], bump["axis"], bump["parameters"]["direction"]) == ("local", "X", "X")
+    assert {(e["kind"], e["axis"], e["parameters"]["direction"]) for e in report["effects"]} == {
+        ("local", "X", "X")
+    }, report["effects"]
+    refused = [
+        s
+        for s in report["loop"]
+        if s["effect"]["label"].startswith("local defect Z in X")
+        and "is predicted worse with it where held out" in s["reason"]
+    ]
+    assert refused and "diag_xz_pm_b" in refused[0]["reason"]
+
+
 def test_a_surface_the_plan_cannot_place_is_kept_with_a_warning_naming_its_rival() -> None:
     # the direct plan measures each function on one line: EY over X×Z (the truth) and EY over Y×Z
     # predict the held-out blocks alike (0.0995 and 0.0996 µm); the loop keeps one and says so
