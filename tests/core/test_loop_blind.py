@@ -630,6 +630,23 @@ def test_a_bump_diagonals_put_on_either_axis_is_kept_on_the_one_no_line_contradi
     assert refused and "diag_xz_pm_b" in refused[0]["reason"]
 
 
+def test_a_surface_a_held_out_body_diagonal_is_predicted_worse_with_is_kept() -> None:
+    # demo plan, 0.14 µm noise: a surface EY over X×Y (2.8 µm) and a 72 mm Abbe offset of
+    # diag_yz_pm_b. Held out, body_pmp (which separates the surface from the squareness errors)
+    # is predicted 426 σ² worse with the surface, though it shows 184 σ² of it: a surface is not
+    # refused as contradicted by a line, as a local defect is, and both effects are kept
+    report, truth = _loop(54099)
+    assert {(e["kind"], e.get("line") or e["axis"]) for e in truth["effects"]} == {
+        ("cross_axis", "Y"),
+        ("abbe_offset", "diag_yz_pm_b"),
+    }
+    kept = {(e["kind"], e["axis"]) for e in report["effects"]}
+    assert ("cross_axis", "Y") in kept and len(report["effects"]) == 2, report["effects"]
+    (offset,) = [e for e in report["effects"] if e["kind"] == "abbe_offset"]
+    assert offset["parameters"]["line"] == "diag_yz_pm_b"
+    assert not report["unexplained"], report["unexplained"]
+
+
 def test_a_surface_the_plan_cannot_place_is_kept_with_a_warning_naming_its_rival() -> None:
     # the direct plan measures each function on one line: EY over X×Z (the truth) and EY over Y×Z
     # predict the held-out blocks alike (0.0995 and 0.0996 µm); the loop keeps one and says so
