@@ -630,6 +630,18 @@ def test_a_bump_diagonals_put_on_either_axis_is_kept_on_the_one_no_line_contradi
     assert refused and "diag_xz_pm_b" in refused[0]["reason"]
 
 
+def test_a_bump_held_out_blocks_of_its_line_predict_worse_is_kept_beside_a_missing_cycle() -> None:
+    # twelve-line plan, held-out blocks: a 4.8 µm bump of Z at 71 mm beside a 25 mm cycle of Z
+    # and a faint bump of X. At step 1, with the cycle still missing, z_lin_2's held-out blocks
+    # are predicted 40 σ² worse with the bump (25 σ² shown): predicted with the rest of their
+    # own line, they carry what it lacks. Only held-out lines contradict a bump; all three kept
+    report, truth = _loop(53121)
+    injected = {(e["kind"], e["axis"]) for e in truth["effects"]}
+    assert injected == {("local", "Z"), ("cyclic", "Z"), ("local", "X")}
+    assert {(e["kind"], e["axis"]) for e in report["effects"]} == injected, report["effects"]
+    assert not any("contradict" in s["reason"] for s in report["loop"])
+
+
 def test_a_surface_a_held_out_body_diagonal_is_predicted_worse_with_is_kept() -> None:
     # demo plan, 0.14 µm noise: a surface EY over X×Y (2.8 µm) and a 72 mm Abbe offset of
     # diag_yz_pm_b. Held out, body_pmp (which separates the surface from the squareness errors)
