@@ -2237,13 +2237,10 @@ def _judge(
         )
         if unsteady is not None:
             return refused(unsteady, "not repeatable")
-        contradicted = (
-            _contradicted_by_a_line(energy, per_line, current.readings)
-            if isinstance(effect, LocalDefect) and cv.method == "leave-one-line-out"
-            else None
-        )
-        if contradicted is not None:
-            return refused(contradicted, "not confirmed")
+        if isinstance(effect, LocalDefect) and cv.method == "leave-one-line-out":
+            contradicted = _contradicted_by_a_line(energy, per_line, current.readings)
+            if contradicted is not None:
+                return refused(contradicted, "not confirmed")
     if improvement < options.margin:
         local = _gain_where_it_acts(effect, current, rows, cv, cv_new) if improvement > 0 else None
         gained = 0.0
@@ -2296,7 +2293,7 @@ def _judge(
         if uneven is not None:
             return refused(uneven, "uneven along its line")
     if effect.kind in ("cross_axis", "higher_order") and fit is not None:
-        per_line = _held_out_gain(tester, cv, cv_new, rows)
+        # per_line: the held-out gain by line computed above (both kinds need two lines)
         carried = _gained_through_lines_it_leaves(effect, current, refit, per_line, fit)
         if carried is not None:
             return refused(carried[0], "not confirmed", left=carried[1])
