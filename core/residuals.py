@@ -4256,8 +4256,8 @@ def _leaner_place(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[_Tr
     fewer than 15 predicts as well). The tie rule asked again, on parameters only: where the
     kept place has as lean a variant that predicts as well, the plan tells the places apart no
     better than a step did, and the kept one stays (asked next for the smaller peak over the
-    strokes, the machine's place was picked in 8 blind and indep. scenarios and another in 6,
-    among them peaks 0.5 % apart). The other stays named (:func:`_alike`)."""
+    strokes, the machine's place was picked in 9 more blind and indep. scenarios and another
+    in 6, among them for peaks 0.5 % apart). The other stays named (:func:`_alike`)."""
     if not chosen.ok or not isinstance(chosen.finding.effect, CrossAxis):
         return chosen, 0
     place = _surface_place(chosen.finding.effect)
