@@ -4293,22 +4293,15 @@ def _surface_swapped(
         f"RMS {leaner.score:.4g} against {chosen.score:.4g}) with {_complexity(leaner)} "
         f"parameters, where no surface of its place that predicts as well has fewer than {own}"
     )
-    state.steps.append(
-        _surface_replaced(state.number, surface, state.current, state.cv, leaner, reason)  # type: ignore[arg-type]
+    state.current, state.cv, state.kept = _given_way(
+        state.steps,
+        state.number,
+        surface,
+        (state.current, state.cv),
+        leaner,
+        reason,
+        (without, cv_without),
     )
-    state.steps.append(
-        _step(
-            state.number,
-            leaner,
-            True,
-            f"{leaner.reason}; kept in the backward pass in the place of {surface.label}",
-            without,
-            cv_without,
-            stage="backward",
-        )
-    )
-    state.kept = [e for e in leaner.refit.effects if isinstance(e, Effect)]
-    state.current, state.cv = leaner.refit, leaner.cv
 
 
 def _same_shape(effect: Effect, surface: CrossAxis) -> bool:
@@ -5518,21 +5511,9 @@ def _set_up_for_surface(
             f"cross-validated RMS {with_surface:.4g} with the surface, {with_set_up:.4g} with "
             "the set-up error in its place"
         )
-        steps.append(_surface_replaced(number, surface, current, cv, trial, reason))
-        steps.append(
-            _step(
-                number,
-                trial,
-                True,
-                f"{trial.reason}; kept in the backward pass in the place of {surface.label}",
-                without,
-                cv_without,
-                stage="backward",
-            )
+        current, cv, kept = _given_way(
+            steps, number, surface, (current, cv), trial, reason, (without, cv_without)
         )
-        # the refit's own effects: a drift beside it may have been placed again (_tried)
-        kept = [e for e in trial.refit.effects if isinstance(e, Effect)]
-        current, cv = trial.refit, trial.cv
     return current, cv, kept
 
 
@@ -5549,9 +5530,37 @@ def _strongest_set_up(findings: list[Finding], options: LoopOptions) -> Finding 
     )
 
 
+def _given_way(
+    steps: list[Step],
+    number: int,
+    surface: Effect,
+    before: tuple[Identification, CrossValidation],
+    trial: _Trial,
+    reason: str,
+    without: tuple[Identification, CrossValidation],
+) -> tuple[Identification, CrossValidation, list[Effect]]:
+    """A kept surface gives way to ``trial``'s effect, refitted in its place: the two backward
+    steps that say so (``before`` the model with the surface, ``without`` the one without it),
+    and the refit's model, cross-validation and kept effects."""
+    steps.append(_surface_replaced(number, surface, *before, trial, reason))
+    steps.append(
+        _step(
+            number,
+            trial,
+            True,
+            f"{trial.reason}; kept in the backward pass in the place of {surface.label}",
+            *without,
+            stage="backward",
+        )
+    )
+    # the refit's own effects: a drift beside it may have been placed again (_tried)
+    kept = [e for e in trial.refit.effects if isinstance(e, Effect)]
+    return trial.refit, trial.cv, kept
+
+
 def _surface_replaced(
     number: int,
-    surface: CrossAxis,
+    surface: Effect,
     current: Identification,
     cv: CrossValidation,
     trial: _Trial,
