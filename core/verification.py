@@ -17,13 +17,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .calibrate import LoopSource
 from .compensation.tables import CompensationTables
 from .compensation.verify import (
     VerifyRequest,
     standard_compensations,
     verify,
 )
+from .loop_source import LoopSource
 from .machine import AXES, Machine
 from .measurement import Line, Measurement
 from .plans import PlannedLine
