@@ -4867,6 +4867,11 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
         f"errors fitted beside the two differ: {_moved_text(beyond)}. This plan does not settle "
         "the surface's shape; the stated uncertainties of the errors include that difference"
     )
+    separation = separating_lines(
+        [chosen.refit, trial.refit], [effect.label, trial.finding.effect.label]
+    )
+    if separation is not None:
+        text += f". {separation.sentence()[0].upper()}{separation.sentence()[1:]}"
     return _Doubt(text, delta, surface_move=surface)
 
 

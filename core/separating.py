@@ -80,6 +80,7 @@ class Separation:
     noise_um: float
     #: the pairs of fits (by their labels) that no candidate line tells apart
     together: tuple[tuple[str, str], ...]
+    fits: int = 2
 
     def sentence(self) -> str:
         """The advice in words."""
@@ -91,8 +92,9 @@ class Separation:
             lines = f"{len(self.lines)} lines would tell them apart, {listed}: on one of these"
         alike = "; ".join(f"{a} and {b}" for a, b in self.together)
         but = f", but {alike}, which read alike on every line tried" if alike else ""
+        which = "the two" if self.fits == 2 else "every two"
         return (
-            f"{lines} every two read at least {self.least_difference_um:.3g} µm apart (peak, the "
+            f"{lines} {which} read at least {self.least_difference_um:.3g} µm apart (peak, the "
             f"line's datum and scale removed), {ratio:.3g} times the noise of one reading{but}"
         )
 
@@ -136,6 +138,7 @@ def separating_lines(fits: Sequence[Identification], labels: Sequence[str]) -> S
         float(reach[covered].min()),
         noise,
         tuple((labels[i], labels[j]) for (i, j), still in zip(pairs, left, strict=True) if still),
+        len(fits),
     )
 
 

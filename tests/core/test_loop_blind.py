@@ -69,7 +69,8 @@ read the method), for behaviours its suite showed missing:
   same direction that predicts as well with fewer terms: it makes no second claim;
 - a surface whose order the plan does not settle (another order predicts the held-out data as
   well and moves the errors fitted beside it) is kept with a warning naming the errors that
-  move, and their stated uncertainties include the move; so do the errors beside a surface
+  move and a line the plan lacks on which the two read apart, and their stated uncertainties
+  include the move; so do the errors beside a surface
   whose direction and pair the plan cannot tell, and beside a set-up effect (a cosine error)
   that the same effect on another line fits identically;
 - a drift's time constant placed while a set-up error was still missing is estimated again
@@ -1397,6 +1398,8 @@ def test_errors_a_surface_of_unsettled_order_moves_are_stated_with_that_doubt() 
     assert {e["kind"] for e in report["effects"]} == {"cross_axis", "local"}
     (warning,) = [w for w in report["warnings"] if "does not settle the surface's shape" in w]
     assert "EZ over X×Z (order" in warning and "EZX" in warning
+    # and it names a line the plan lacks on which the two orders read apart
+    assert re.search(r"line along [XYZ].* would tell them apart: on it the two read", warning)
     outcome = run_blind(9086)
     assert outcome.kept == outcome.expected
     assert outcome.function_error["EZZ"] > 3.0  # the truth is still not what was fitted ...
