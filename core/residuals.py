@@ -634,7 +634,6 @@ class _Diagnosis:
     readings: Readings
     model: ErrorModel
     excluded: set[EffectKey]
-    plausibility: Plausibility = field(default_factory=Plausibility)
     findings: list[Finding] = field(default_factory=list)
 
     def add(
@@ -683,9 +682,7 @@ def diagnose(
     readings = identification.readings
     model = identification.model
     machine = model.machine
-    diagnosis = _Diagnosis(
-        _Tester(identification), readings, model, set(exclude), options.plausibility
-    )
+    diagnosis = _Diagnosis(_Tester(identification), readings, model, set(exclude))
     warnings: list[str] = []
     excluded_kind_axis = {(k, a) for k, a, _ in exclude}
     moving = _moving_axes(readings)
@@ -1222,10 +1219,7 @@ def _refine_local(
     narrowest: float,
 ) -> tuple[float, float]:
     """Place and half-span of a free-profile bump that remove the most of what the model leaves
-    (Nelder–Mead on the projected gain, from the scan's best), among bumps of plausible size: a
-    span so wide that the profile also takes what another missing effect leaves fits tens of µm
-    against the 21 errors' splines (blind 54086: ± 121 mm and 51.7 µm beside a reversal whose
-    slope was not yet in the model, for a 3 µm dent), and a bump refused for that is lost."""
+    (Nelder–Mead on the projected gain, from the scan's best)."""
     from scipy.optimize import minimize
 
     tester = diagnosis.tester
@@ -1238,10 +1232,7 @@ def _refine_local(
         if not (low <= c <= high and shortest <= w <= longest):
             return 0.0
         effect = LocalDefect(axis, direction, c, w, "free")
-        f_statistic, _, _, values = tester.test(effect.design(diagnosis.readings, diagnosis.model))
-        if effect.implausible(values, np.zeros((0, 0)), diagnosis.plausibility):
-            return 0.0
-        return -f_statistic
+        return -tester.test(effect.design(diagnosis.readings, diagnosis.model))[0]
 
     start = np.array([center, np.log(width)])
     result = minimize(
