@@ -4718,14 +4718,14 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     advice = (
         separation.sentence()
         if separation is not None
-        else "lines along the pair's axes at other offsets would tell them apart"
+        else "Lines along the pair's axes at other offsets would tell them apart"
     )
     text = (
         f"{effect.label} was kept, but {_and(named)} "
         f"predict{'s' if len(rivals) == 1 else ''} the held-out data as well (cross-validated "
         f"RMS {score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals])}): this plan "
         "cannot tell which direction and pair of axes the surface belongs to; away from the "
-        f"lines measured they differ{_moves_said(trial, beyond)}. {advice[0].upper()}{advice[1:]}"
+        f"lines measured they differ{_moves_said(trial, beyond)}. {advice}"
     )
     return _Doubt(text, deltas, tuple(rivals), separation=separation)
 
@@ -4862,7 +4862,7 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
         [chosen.refit, trial.refit], [effect.label, trial.finding.effect.label]
     )
     if separation is not None:
-        text += f". {separation.sentence()[0].upper()}{separation.sentence()[1:]}"
+        text += f". {separation.sentence()}"
     return _Doubt(text, delta, surface_move=surface)
 
 

@@ -80,13 +80,14 @@ class Separation:
     noise_um: float
     #: the pairs of fits (by their labels) that no candidate line tells apart
     together: tuple[tuple[str, str], ...]
-    fits: int = 2
+    fits: int
 
     def sentence(self) -> str:
-        """The advice in words."""
+        """The advice in words, as a sentence of a warning."""
         ratio = self.least_difference_um / self.noise_um if self.noise_um > 0 else float("inf")
         if len(self.lines) == 1:
-            lines = f"{self.lines[0].words()} would tell them apart: on it"
+            words = self.lines[0].words()
+            lines = f"{words[0].upper()}{words[1:]} would tell them apart: on it"
         else:
             listed = "; ".join(f"({i}) {line.words()}" for i, line in enumerate(self.lines, 1))
             lines = f"{len(self.lines)} lines would tell them apart, {listed}: on one of these"
