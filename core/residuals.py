@@ -3295,19 +3295,25 @@ class _State:
     #: the first step that kept a surface over a line's set-up error that passed every rule
     #: (:func:`_other_route`); None where none did, or on the route that took the set-up
     fork: _Fork | None = None
-    #: False on the second route: it forks no further
+    #: the first step that kept a surface over its other family of as many terms within ``tie``
+    #: (:func:`_tied_variant`); None where none did, or on a route forked from another
+    variant_fork: _Fork | None = None
+    #: False on a set-up error's route: it forks no further
     may_fork: bool = True
+    #: False on every route but the first: a surface's family forks once per loop
+    may_fork_variant: bool = True
 
 
 @dataclass(frozen=True, eq=False)
 class _Fork:
-    """A step that kept a surface where a line's set-up error passed every rule too: the model
-    before it, its rows, the set-up's trial and what the state held then."""
+    """A step that kept a surface where another candidate passed every rule too (a line's
+    set-up error, or the surface's other family of as many terms): the model before it, its
+    rows, the other candidate's trial and what the state held then."""
 
     number: int
     first_row: int
     surface: _Trial
-    set_up: _Trial
+    other: _Trial
     #: every candidate the step refitted
     tried: list[_Trial]
     state: _State
@@ -3426,7 +3432,25 @@ def _forward(
                 chosen = _kept_re_placed(moved, number, current, cv, steps)
         else:
             if state.may_fork and state.fork is None:
-                state.fork = _fork_at(state, chosen, tried_this_step, number, steps, current, cv)
+                set_up = _passing_set_up(chosen, tried_this_step)
+                if set_up is not None:
+                    state.fork = _fork_at(
+                        state, chosen, set_up, tried_this_step, number, steps, current, cv
+                    )
+            if state.may_fork_variant and state.variant_fork is None:
+                variant = _tied_variant(chosen, tried_this_step, options.tie)
+                if variant is not None:
+                    state.variant_fork = _fork_at(
+                        state,
+                        chosen,
+                        variant,
+                        tried_this_step,
+                        number,
+                        steps,
+                        current,
+                        cv,
+                        may_fork=True,
+                    )
             # rivals of a kept surface the step's batches left out: refitted to be named only
             extra = []
             for orders in _untried_places(findings, tried_this_step, chosen, options):
@@ -3462,18 +3486,9 @@ def _forward(
     state.current, state.cv, state.kept, state.number = current, cv, kept, number
 
 
-def _fork_at(
-    state: _State,
-    chosen: _Trial,
-    tried: list[_Trial],
-    number: int,
-    steps: list[Step],
-    current: Identification,
-    cv: CrossValidation,
-) -> _Fork | None:
-    """Where step ``number`` keeps a surface and a line's set-up error passed every rule beside
-    it, the fork the second route starts from (:func:`_other_route`): the best-predicting such
-    set-up error, and the state as it stood before the step."""
+def _passing_set_up(chosen: _Trial, tried: list[_Trial]) -> _Trial | None:
+    """Where a step keeps a surface: the best-predicting line's set-up error among the step's
+    candidates that passed every rule beside it, if any (the second route, :func:`_other_route`)."""
     if not isinstance(chosen.finding.effect, CrossAxis):
         return None
     set_ups = [
@@ -3481,8 +3496,54 @@ def _fork_at(
         for t in tried
         if t.ok and t is not chosen and isinstance(t.finding.effect, (AbbeOffset, Cosine))
     ]
-    if not set_ups:
+    return min(set_ups, key=lambda t: t.score) if set_ups else None
+
+
+def _tied_variant(chosen: _Trial, tried: list[_Trial], tie: float) -> _Trial | None:
+    """Where a step keeps a surface: the best-predicting other surface of its place that passed
+    every rule with no more terms and within ``tie`` of it, if any.
+
+    Of two such (order 6 and order 4 with lever-arm terms both hold six), the step keeps the one
+    that predicts a little better; no rule tells them apart there, and the rest of the loop
+    builds on the one kept. The one a step keeps can take a line's set-up error still missing
+    that the other leaves for a later step (blind 55024, displacement-only plan: EY over X×Y
+    kept at order 6 for 0.0949 µm against 0.0953 µm at order 4 with lever-arm terms; the Abbe
+    offset of z_lin_1 was then read 110 mm long, implausible, a surface EZ over Y×Z the machine
+    has not was kept in its step, and the 4.4 mrad cosine error of y_lin_3 never showed; 0.0522
+    µm held out with 15 parameters. From order 4 with lever-arm terms the loop keeps the Abbe
+    offset and the cosine error: 0.0519 µm with 10). So the loop runs on from such a step both
+    ways (:func:`_other_route`)."""
+    effect = chosen.finding.effect
+    if not isinstance(effect, CrossAxis):
         return None
+    variants = [
+        t
+        for t in tried
+        if t.ok
+        and t is not chosen
+        and isinstance(t.finding.effect, CrossAxis)
+        and _surface_place(t.finding.effect) == _surface_place(effect)
+        and _complexity(t) <= _complexity(chosen)
+        and t.score <= chosen.score * (1.0 + tie)
+    ]
+    return min(variants, key=lambda t: t.score) if variants else None
+
+
+def _fork_at(
+    state: _State,
+    chosen: _Trial,
+    other: _Trial,
+    tried: list[_Trial],
+    number: int,
+    steps: list[Step],
+    current: Identification,
+    cv: CrossValidation,
+    may_fork: bool = False,
+) -> _Fork:
+    """The fork another route starts from (:func:`_other_route`) where step ``number`` kept the
+    surface ``chosen`` and ``other`` passed every rule too (``tried``: every candidate the step
+    refitted): the state as it stood before the step; the route may fork again at a set-up
+    error where ``may_fork``."""
     first_row = next(i for i, row in enumerate(steps) if row.step == number)
     before = _State(
         current,
@@ -3498,9 +3559,10 @@ def _fork_at(
         rivals=dict(state.rivals),
         aliased=dict(state.aliased),
         number=number,
-        may_fork=False,
+        may_fork=may_fork,
+        may_fork_variant=False,
     )
-    return _Fork(number, first_row, chosen, min(set_ups, key=lambda t: t.score), tried, before)
+    return _Fork(number, first_row, chosen, other, tried, before)
 
 
 def _tried(
@@ -4352,10 +4414,12 @@ def _other_route(
     base: Identification,
 ) -> _State:
     """The loop again from the first step that kept a surface over a line's set-up error that
-    passed every rule too (:func:`_fork_at`), with the set-up error kept there instead; the
-    route that ends predicting the held-out data better by ``margin``, or as well (within
-    ``tie``) with fewer parameters, is the loop's; ``rounds`` runs the loop's rounds (forward
-    steps, backward passes, audits) on a state.
+    passed every rule too (:func:`_passing_set_up`), with the set-up error kept there instead,
+    and from the first step that kept a surface over its other family of as many terms that
+    predicted within ``tie`` (:func:`_tied_variant`), with that one kept there instead (a route
+    that may itself fork once at a set-up error); the route that ends predicting the held-out
+    data better by ``margin``, or as well (within ``tie``) with fewer parameters, is the loop's;
+    ``rounds`` runs the loop's rounds (forward steps, backward passes, audits) on a state.
 
     Each step keeps what predicts best at that step, and a surface takes more of what is still
     missing than one line's set-up error does: the rest of the loop then builds on it. On a
@@ -4365,51 +4429,79 @@ def _other_route(
     for a 3.3 mrad cosine error of body_ppp, then EY over X×Z of order 8; 0.0935 µm held out,
     25 parameters, 10 lines unexplained. With the cosine error kept at step 2, EY over Y×Z —
     the injected surface — and the cycle: 0.0836 µm, 8 parameters). Backward passes replace one
-    effect at a time and cannot undo that. One fork per loop: the first such step."""
-    fork = state.fork
-    if fork is None:
-        return state
-    other, set_up, surface = fork.state, fork.set_up, fork.surface
+    effect at a time and cannot undo that."""
+    chosen = state
+    if state.fork is not None:
+        chosen = _route_taken(
+            state, _route(state.fork, rounds, fit, options, progress, base), state.fork, options
+        )
+    if state.variant_fork is not None:
+        other = _route(state.variant_fork, rounds, fit, options, progress, base)
+        other = _other_route(other, rounds, fit, options, progress, base)
+        chosen = _route_taken(chosen, other, state.variant_fork, options)
+    return chosen
+
+
+def _route(
+    fork: _Fork,
+    rounds: Callable[[_State, ProgressCallback | None], None],
+    fit: _Fitter,
+    options: LoopOptions,
+    progress: ProgressCallback | None,
+    base: Identification,
+) -> _State:
+    """The loop's rounds run from ``fork``'s state with its other candidate kept at its step
+    (:func:`_other_route`)."""
+    other, kept_there = fork.state, fork.other
     rows = other.steps[fork.first_row :]
     other.steps = other.steps[: fork.first_row] + [
         _swapped(row, fork, options.margin) for row in rows
     ]
-    kept = [e for e in set_up.refit.effects if isinstance(e, Effect)]
+    kept = [e for e in kept_there.refit.effects if isinstance(e, Effect)]
     other.current, other.cv, other.kept = _refine(
-        fit, set_up.refit, set_up.cv, kept, base, other.steps, fork.number, options.alpha
+        fit, kept_there.refit, kept_there.cv, kept, base, other.steps, fork.number, options.alpha
     )
 
-    def onward(fraction: float, message: str) -> None:  # the second route: 85–90 %
-        report(progress, 0.85 + 0.05 * fraction, f"second route from step {fork.number}: {message}")
+    def onward(fraction: float, message: str) -> None:  # another route: 85–90 %
+        report(
+            progress, 0.85 + 0.05 * fraction, f"another route from step {fork.number}: {message}"
+        )
 
     rounds(other, onward)
+    return other
+
+
+def _route_taken(state: _State, other: _State, fork: _Fork, options: LoopOptions) -> _State:
+    """Of ``state`` and ``other``, the route run from ``fork`` (:func:`_route`), the one the loop
+    takes: ``other`` where it ends predicting the held-out data better by ``margin``, or as well
+    (within ``tie``) with fewer parameters; the rows of the fork's step say both ends."""
     ended, ended_other, _ = _compared(state.cv, other.cv, state.current, other_fit=other.current)
     terms, terms_other = _model_terms(state.current), _model_terms(other.current)
     taken = ended_other < ended * (1.0 - options.margin) or (
         ended_other <= ended * (1.0 + options.tie) and terms_other < terms
     )
+    surface, kept_there = fork.surface.finding.effect, fork.other.finding.effect
     said = (
-        f"{BOTH_WAYS}: with {surface.finding.effect.label} kept "
-        f"it ended at a cross-validated RMS of {ended:.4g} with {terms} parameters, with "
-        f"{set_up.finding.effect.label} kept at {ended_other:.4g} with {terms_other}"
+        f"{BOTH_WAYS}: with {surface.label} kept it ended at a cross-validated RMS of "
+        f"{ended:.4g} with {terms} parameters, with {kept_there.label} kept at {ended_other:.4g} "
+        f"with {terms_other}"
     )
     chosen = other if taken else state
-    for at in range(fork.first_row, fork.first_row + len(rows)):
+    for at in range(fork.first_row, len(chosen.steps)):
         row = chosen.steps[at]
-        if (
-            row.finding.effect is set_up.finding.effect
-            or row.finding.effect is surface.finding.effect
-        ):
+        if row.step != fork.number:
+            break
+        if row.finding.effect is surface or row.finding.effect is kept_there:
             chosen.steps[at] = replace(row, reason=f"{row.reason}; {said}")
     return chosen
 
 
 def _swapped(row: Step, fork: _Fork, margin: float) -> Step:
-    """A row of the step a second route forks at (:func:`_other_route`), with the set-up error
-    kept there in the surface's place."""
+    """A row of the step another route forks at (:func:`_other_route`), with the fork's other
+    candidate kept there in the surface's place."""
     effect = row.finding.effect
-    if effect is fork.set_up.finding.effect:
-        return replace(row, kept=True, verdict="kept", reason=fork.set_up.reason)
+    if effect is fork.other.finding.effect:
+        return replace(row, kept=True, verdict="kept", reason=fork.other.reason)
     trial = next((t for t in fork.tried if t.finding.effect is effect), None)
     if trial is None or not trial.ok:
         return row
@@ -4417,7 +4509,7 @@ def _swapped(row: Step, fork: _Fork, margin: float) -> Step:
         row,
         kept=False,
         verdict="another kept",
-        reason=f"{trial.reason}{_kept_instead(fork.set_up, trial, margin)}",
+        reason=f"{trial.reason}{_kept_instead(fork.other, trial, margin)}",
     )
 
 
