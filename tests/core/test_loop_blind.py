@@ -64,6 +64,10 @@ read the method), for behaviours its suite showed missing:
   and a squareness) is left to those errors, and the report says which errors carry it;
 - a surface of another order at the kept one's place is kept before a second surface of the
   same direction that predicts as well with fewer terms: it makes no second claim;
+- a surface kept at a step over its other family of as many terms that predicted as well (order
+  6 and order 4 with lever-arm terms) is followed both ways to the end, and the route that ends
+  better or as well with fewer parameters is the loop's: the one a step kept had taken a line's
+  set-up error still missing;
 - a surface whose order the plan does not settle (another order predicts the held-out data as
   well and moves the errors fitted beside it) is kept with a warning naming the errors that
   move and a line the plan lacks on which the two read apart, and their stated uncertainties
@@ -439,6 +443,34 @@ def test_a_set_up_error_second_to_a_surface_is_followed_to_the_end_of_a_second_r
         s for s in report["loop"] if s["step"] == 2 and s["kept"] and s["stage"] == "forward"
     ]
     assert forked["effect"]["kind"] == "cosine"
+    assert "the loop ran on from this step both ways" in forked["reason"]
+    (cosine,) = [e for e in truth["effects"] if e["kind"] == "cosine"]
+    (fitted,) = [e for e in report["effects"] if e["kind"] == "cosine"]
+    assert fitted["parameters"]["scale_ppm"] == pytest.approx(
+        cosine["parameters"]["scale_ppm"], abs=0.5
+    )
+
+
+def test_a_surface_kept_over_its_other_family_of_as_many_terms_is_followed_both_ways() -> None:
+    # blind 55024 (displacement-only plan, 0.051 µm noise): EY over X×Y (30× the noise), a
+    # 4.4 mrad misalignment of y_lin_3 (−9.6 ppm) and a 79 mm Abbe offset of z_lin_1. Step 1
+    # kept EY over X×Y at order 6 (0.0949 µm held out) over order 4 with lever-arm terms
+    # (0.0953 µm), six terms each; the Abbe offset then read 110 mm, implausible, EZ over Y×Z
+    # was kept at step 2 and the cosine error never showed: 0.0522 µm, 15 parameters. The loop
+    # runs on from step 1 with the other family kept and ends with the three at 0.0519 µm, 10.
+    report, truth = _loop(55024)
+    assert truth["category"] == "effects"
+    assert _kept_places(report) == [
+        ("abbe_offset", "z_lin_1"),
+        ("cosine", "y_lin_3"),
+        ("cross_axis", "Y"),
+    ]
+    (surface,) = [e for e in report["effects"] if e["kind"] == "cross_axis"]
+    assert sorted(surface["parameters"]["depends_on"]) == ["X", "Y"]
+    (forked,) = [
+        s for s in report["loop"] if s["step"] == 1 and s["kept"] and s["stage"] == "forward"
+    ]
+    assert forked["effect"]["kind"] == "cross_axis"
     assert "the loop ran on from this step both ways" in forked["reason"]
     (cosine,) = [e for e in truth["effects"] if e["kind"] == "cosine"]
     (fitted,) = [e for e in report["effects"] if e["kind"] == "cosine"]
