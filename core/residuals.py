@@ -4430,51 +4430,48 @@ def _other_route(
     25 parameters, 10 lines unexplained. With the cosine error kept at step 2, EY over Y×Z —
     the injected surface — and the cycle: 0.0836 µm, 8 parameters). Backward passes replace one
     effect at a time and cannot undo that."""
+
+    def route(fork: _Fork) -> _State:
+        """The loop's rounds run from ``fork``'s state with its other candidate kept at its
+        step."""
+        other, kept_there = fork.state, fork.other
+        rows = other.steps[fork.first_row :]
+        other.steps = other.steps[: fork.first_row] + [
+            _swapped(row, fork, options.margin) for row in rows
+        ]
+        kept = [e for e in kept_there.refit.effects if isinstance(e, Effect)]
+        other.current, other.cv, other.kept = _refine(
+            fit,
+            kept_there.refit,
+            kept_there.cv,
+            kept,
+            base,
+            other.steps,
+            fork.number,
+            options.alpha,
+        )
+
+        def onward(fraction: float, message: str) -> None:  # another route: 85–90 %
+            said = f"another route from step {fork.number}: {message}"
+            report(progress, 0.85 + 0.05 * fraction, said)
+
+        rounds(other, onward)
+        return other
+
     chosen = state
     if state.fork is not None:
-        chosen = _route_taken(
-            state, _route(state.fork, rounds, fit, options, progress, base), state.fork, options
-        )
+        chosen = _route_taken(state, route(state.fork), state.fork, options)
     if state.variant_fork is not None:
-        other = _route(state.variant_fork, rounds, fit, options, progress, base)
-        other = _other_route(other, rounds, fit, options, progress, base)
+        other = _other_route(route(state.variant_fork), rounds, fit, options, progress, base)
         chosen = _route_taken(chosen, other, state.variant_fork, options)
     return chosen
 
 
-def _route(
-    fork: _Fork,
-    rounds: Callable[[_State, ProgressCallback | None], None],
-    fit: _Fitter,
-    options: LoopOptions,
-    progress: ProgressCallback | None,
-    base: Identification,
-) -> _State:
-    """The loop's rounds run from ``fork``'s state with its other candidate kept at its step
-    (:func:`_other_route`)."""
-    other, kept_there = fork.state, fork.other
-    rows = other.steps[fork.first_row :]
-    other.steps = other.steps[: fork.first_row] + [
-        _swapped(row, fork, options.margin) for row in rows
-    ]
-    kept = [e for e in kept_there.refit.effects if isinstance(e, Effect)]
-    other.current, other.cv, other.kept = _refine(
-        fit, kept_there.refit, kept_there.cv, kept, base, other.steps, fork.number, options.alpha
-    )
-
-    def onward(fraction: float, message: str) -> None:  # another route: 85–90 %
-        report(
-            progress, 0.85 + 0.05 * fraction, f"another route from step {fork.number}: {message}"
-        )
-
-    rounds(other, onward)
-    return other
-
-
 def _route_taken(state: _State, other: _State, fork: _Fork, options: LoopOptions) -> _State:
-    """Of ``state`` and ``other``, the route run from ``fork`` (:func:`_route`), the one the loop
-    takes: ``other`` where it ends predicting the held-out data better by ``margin``, or as well
-    (within ``tie``) with fewer parameters; the rows of the fork's step say both ends."""
+    """Of ``state`` and ``other``, the route run from ``fork`` (:func:`_other_route`), the one
+    the loop takes: ``other`` where it ends predicting the held-out data better by ``margin``,
+    or as well (within ``tie``) with fewer parameters; the rows of the fork's step say both
+    ends."""
     ended, ended_other, _ = _compared(state.cv, other.cv, state.current, other_fit=other.current)
     terms, terms_other = _model_terms(state.current), _model_terms(other.current)
     taken = ended_other < ended * (1.0 - options.margin) or (
