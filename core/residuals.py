@@ -4149,15 +4149,10 @@ def _close_loop(
         """The forward steps, the backward pass, the set-up errors in the place of surfaces and
         the audit, in rounds while the audit takes an effect out."""
         # the kept sets the rounds started from: where the audit leaves one of them, another
-        # round would mostly keep what this one kept over again (blind 26062: a surface the
-        # backward pass took out, and beside it the cosine the audit took out, owed a refit
-        # once the surface was back), and the loop stops there; unless an axis' scale still
-        # changes in time there: what this round kept first may have stood in for the drift
-        # (blind 57197: a cosine error of x_linear kept where a drift of X tied it, the
-        # diagonals' cosine errors beside it; the audit took the three out, back to the empty
-        # start, and 20 lines were reported; run again, the drift came first and the two
-        # diagonals' errors after it). Where none does, the round run again kept what the
-        # audit had taken out, with a surface beside it that made its sizes agree (blind 57088)
+        # round would keep what that one kept over again (blind 26062: a surface the backward
+        # pass took out, and beside it the cosine the audit took out, owed a refit once the
+        # surface was back), and the loop stops there, at the cost of not retrying what an
+        # effect taken out of the first round's start may have hidden
         starts: list[frozenset[EffectKey]] = []
         for _ in range(AUDIT_ROUNDS):
             starts.append(frozenset(e.key for e in state.kept))
@@ -4171,9 +4166,7 @@ def _close_loop(
             if not _prune(_audit, state, fit, base, cv_base, options):
                 break
             left = frozenset(e.key for e in state.kept)
-            if state.number >= options.max_steps:
-                break
-            if left in starts and not _scales_in_time(state.current, options.alpha):
+            if state.number >= options.max_steps or left in starts:
                 break
             # what the taken-out effect held is the others' again: every candidate is scored
             # anew, but the taken-out one (its key: a cycle at another period, a surface of
