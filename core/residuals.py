@@ -4151,11 +4151,16 @@ def _close_loop(
         # the kept sets the rounds started from: where the audit leaves one of them, another
         # round would keep what that one kept over again (blind 26062: a surface the backward
         # pass took out, and beside it the cosine the audit took out, owed a refit once the
-        # surface was back), and the loop stops there, at the cost of not retrying what an
-        # effect taken out of the first round's start may have hidden
+        # surface was back), and the loop stops there; unless an axis' scale still changes in
+        # time there, which what the round kept may have stood in for: the round runs again
+        # with everything it kept held back until another effect is kept (blind 57197: a
+        # cosine error of x_linear kept where a drift of X tied it, the diagonals' cosine
+        # errors beside it; the audit took the three out, back to the empty start, 20 lines
+        # reported; run again, the drift comes first and the two cosine errors after it)
         starts: list[frozenset[EffectKey]] = []
         for _ in range(AUDIT_ROUNDS):
             starts.append(frozenset(e.key for e in state.kept))
+            first_row = len(state.steps)
             _forward(state, fit, options, progress, cancel, base)
             _prune(_backward, state, fit, base, cv_base, options)
             placed = frozenset(e.key for e in state.kept)
@@ -4166,7 +4171,10 @@ def _close_loop(
             if not _prune(_audit, state, fit, base, cv_base, options):
                 break
             left = frozenset(e.key for e in state.kept)
-            if state.number >= options.max_steps or left in starts:
+            if state.number >= options.max_steps:
+                break
+            again = left in starts
+            if again and not _scales_in_time(state.current, options.alpha):
                 break
             # what the taken-out effect held is the others' again: every candidate is scored
             # anew, but the taken-out one (its key: a cycle at another period, a surface of
@@ -4177,7 +4185,14 @@ def _close_loop(
             # again a round later)
             state.refused.clear()
             state.refused_beside.clear()
-            for key in before - left:
+            held = before - left
+            if again:
+                held |= {
+                    row.finding.effect.key
+                    for row in state.steps[first_row:]
+                    if row.stage == "forward" and row.kept
+                } - left
+            for key in held:
                 state.refused[key] = np.inf
                 state.refused_beside[key] = left
 

@@ -68,6 +68,9 @@ read the method), for behaviours its suite showed missing:
   6 and order 4 with lever-arm terms) is followed both ways to the end, and the route that ends
   better or as well with fewer parameters is the loop's: the one a step kept had taken a line's
   set-up error still missing;
+- a round whose audit takes out everything it kept, back to where it started, is run again
+  where an axis' scale still changes in time, everything the round kept held back until another
+  effect is kept (a cosine error of the first line that stood in for a drift);
 - a drift whose form leaves its axis' scale changing in time is read again by the audit in a
   form that does not (a course in time or a first-order response in place of a straight line
   between two temperature logs), before any set-up error is taken out for that change;
@@ -480,6 +483,37 @@ def test_a_surface_kept_over_its_other_family_of_as_many_terms_is_followed_both_
     assert fitted["parameters"]["scale_ppm"] == pytest.approx(
         cosine["parameters"]["scale_ppm"], abs=0.5
     )
+
+
+def test_a_round_the_audit_brings_back_to_its_start_runs_again_without_what_it_took_out() -> None:
+    # blind 57197 (demo plan, 0.23 µm noise): a drift of X (12.0 ppm/°C, logged material
+    # temperature) and misalignments of diag_xy_pm_b (-5.31 ppm) and diag_xy_pp_b (-4.79 ppm).
+    # The first round kept a cosine error of x_linear in the drift's place (tied with it held
+    # out, one parameter fewer) and the two diagonals' beside it; the audit took all three out
+    # (x_linear still drifting, the X scale changing in time), back to the round's empty start,
+    # and the loop stopped there with 20 lines reported. Run again with those three held back
+    # until another effect is kept, the drift comes first and the two misalignments after it.
+    report, truth = _loop(57197)
+    assert truth["category"] == "effects"
+    assert _kept_places(report) == [
+        ("cosine", "diag_xy_pm_b"),
+        ("cosine", "diag_xy_pp_b"),
+        ("thermal_drift", "X"),
+    ]
+    audited = {s["effect"]["label"] for s in report["loop"] if s["stage"] == "audit"}
+    assert "cosine misalignment of line x_linear" in audited
+    (drift,) = [e for e in truth["effects"] if e["kind"] == "thermal_drift"]
+    (fitted,) = [e for e in report["effects"] if e["kind"] == "thermal_drift"]
+    assert fitted["parameters"]["expansion_ppm_per_c"] == pytest.approx(
+        drift["parameters"]["alpha_ppm_per_K"], abs=0.5
+    )
+    for cosine in (e for e in truth["effects"] if e["kind"] == "cosine"):
+        (fitted,) = [
+            e for e in report["effects"] if e.get("parameters", {}).get("line") == cosine["line"]
+        ]
+        assert fitted["parameters"]["scale_ppm"] == pytest.approx(
+            cosine["parameters"]["scale_ppm"], abs=0.3
+        )
 
 
 def test_a_drift_that_leaves_its_axis_scale_changing_is_read_again_in_another_form() -> None:
