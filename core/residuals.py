@@ -5994,7 +5994,9 @@ def _steadier_drift(
     unexplained. Read as a first-order response between the logs, the scale stands still and
     both stay)."""
     readings = current.readings
-    found: list[tuple[float, ThermalDrift, ThermalDrift, Identification, CrossValidation]] = []
+    found: list[
+        tuple[float, float, ThermalDrift, ThermalDrift, Identification, CrossValidation]
+    ] = []
     for drift in kept:
         if not isinstance(drift, ThermalDrift) or drift.axis not in unsteady:
             continue
@@ -6026,10 +6028,10 @@ def _steadier_drift(
                 continue
             before, after, _ = _compared(cv, cv_new, current, other_fit=refit)
             if after <= before * (1.0 + options.tie):
-                found.append((after, drift, other, refit, cv_new))
+                found.append((after, before, drift, other, refit, cv_new))
     if not found:
         return None
-    after, drift, other, refit, cv_new = min(found, key=lambda f: f[0])
+    after, before, drift, other, refit, cv_new = min(found, key=lambda f: f[0])
     p, by, swing, _ = unsteady[drift.axis]
     reason = (
         f"{drift.label} read again as {other.label}"
@@ -6038,7 +6040,7 @@ def _steadier_drift(
         f"{by.name} follows its distance times a course in time, {swing:.3g} µm RMS, log10 false "
         f"alarm {_log10_text(p)}); read again, no line moving {drift.axis} alone does, and the "
         f"held-out readings are predicted within the {100 * options.tie:g} % tie "
-        f"(cross-validated RMS {_compared(cv, cv_new, current, other_fit=refit)[0]:.4g} → "
+        f"(cross-validated RMS {before:.4g} → "
         f"{after:.4g})"
     )
     return drift, other, refit, cv_new, reason
