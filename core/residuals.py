@@ -872,6 +872,9 @@ SUB_SPACING_SHARE = 0.5
 #: A period shorter than twice the spacing is kept only when its gain is this many times that of
 #: every other peak of the search: with near-regular targets its aliases fit as well.
 ALIAS_MARGIN = 2.0
+#: ... or when its gain exceeds every other peak's by this many spreads of a gain (2·√gain, in
+#: σ², the spread of a fitted drop whose expectation is the gain): a difference no noise makes.
+ALIAS_SPREADS = 3.0
 #: No cycle shorter than this is searched (mm): the finest screw leads of machine-tool axes.
 SHORTEST_PERIOD_MM = 2.0
 #: Targets whose spectral window stays below this share of its peak at every frequency from
@@ -1001,7 +1004,7 @@ def _search_period(
             )
 
         rivals = [gains[i] for i in gains if i != best and not harmonic(frequencies[i])]
-        if len(gains) == 1 or (rivals and gains[best] < ALIAS_MARGIN * max(rivals)):
+        if len(gains) == 1 or (rivals and not _beats_aliases(gains[best], max(rivals))):
             resolved_peaks = [i for i in gains if frequencies[i] <= cutoff]
             if not resolved_peaks:
                 return None
@@ -1030,6 +1033,19 @@ def _search_period(
         ]
         alias = tuple(sorted(1.0 / f for f in rivals if projected_gain(f) * ALIAS_MARGIN >= own))
     return 1.0 / frequency, trials, alias
+
+
+def _beats_aliases(gain: float, rival: float) -> bool:
+    """Whether a period below twice the targets' spacing, whose cycle drops the residual sum of
+    squares by ``gain`` (σ²), is told from the best other peak of the search (``rival``).
+
+    By :data:`ALIAS_MARGIN` times, or by :data:`ALIAS_SPREADS` spreads of its gain: with
+    irregular targets an alias fits part of a strong cycle, and the ratio alone throws away what
+    the difference says (blind 57023, a 1.0 µm cycle of Z of 11.21 mm on targets 14–25 mm apart
+    at 0.11 µm noise: 1460 σ² against 877 for its alias at 7.41 mm, 1.7 times but 7.6 spreads;
+    the search fell back to a 36.4 mm peak of 141 σ², and two bumps of 12.7 and 8.2 µm took the
+    cycle's place)."""
+    return gain >= ALIAS_MARGIN * rival or gain - rival >= ALIAS_SPREADS * 2.0 * np.sqrt(gain)
 
 
 def _periods_text(periods: Sequence[float]) -> str:
