@@ -690,6 +690,24 @@ def test_a_cycle_whose_second_harmonic_peaks_beside_it_is_found_at_its_own_perio
     assert not report["unexplained"], report["unexplained"]
 
 
+def test_a_cycle_whose_alias_fits_part_of_it_wins_by_what_noise_cannot_make() -> None:
+    # blind 57023, twelve-line plan, targets 14-25 mm apart along Z, 0.11 µm noise: an 11.2 mm
+    # cycle of Z, 1.0 µm with a 0.33 µm second harmonic. Its alias at 7.41 mm fits 877 σ² of
+    # the cycle's 1460: 1.7 times, short of the guard's ratio of 2, and the search fell back to
+    # a 36.4 mm peak of 141 σ²; two bumps of Z of 12.7 and 8.2 µm were kept and five lines
+    # reported. 583 σ² apart is 7.6 spreads of the cycle's gain: no noise makes that
+    report, truth = _loop(57023)
+    (cycle,) = truth["effects"]
+    assert (cycle["kind"], cycle["axis"]) == ("cyclic", "Z")
+    assert _kept_places(report) == [("cyclic", "Z")], report["effects"]
+    (kept,) = report["effects"]
+    parameters, p = kept["parameters"], cycle["parameters"]
+    assert parameters["period_mm"] == pytest.approx(p["period_mm"], rel=0.002)
+    assert parameters["amplitude_um"] == pytest.approx(p["amplitude_um"], abs=0.03)
+    assert parameters["amplitude_um_h2"] == pytest.approx(p["harmonic2_amplitude_um"], abs=0.03)
+    assert not report["unexplained"], report["unexplained"]
+
+
 def test_a_cycle_with_its_second_harmonic_is_placed_with_it_and_leaves_no_bump() -> None:
     # demo plan, 0.086 µm noise: a 33.671 mm cycle of X (1.9 µm, second harmonic 0.73 µm), 20
     # periods over the stroke. Its period was refined as a pure sine and kept, with its harmonic,
