@@ -273,6 +273,9 @@ class LoopResult:
     #: per kept effect (as ``final.effects``): its rivals of another place that fit as well
     #: (empty when it has none); each may be the effect the machine has
     rivals: tuple[dict[str, object], ...] = ()
+    #: per kept effect (as ``final.effects``): for a drift whose time constant the loop searched,
+    #: τ's standard-uncertainty range and the drift's size at either end (empty otherwise)
+    searched_ranges: tuple[dict[str, object], ...] = ()
 
     @property
     def kept(self) -> tuple[Effect, ...]:
@@ -287,12 +290,14 @@ class LoopResult:
     def effects_report(self) -> list[dict[str, object]]:
         out: list[dict[str, object]] = []
         rivals = self.rivals or ({},) * len(self.shared)
-        for effect, values, cov, part, rival in zip(
+        ranges = self.searched_ranges or ({},) * len(self.shared)
+        for effect, values, cov, part, rival, searched in zip(
             self.final.effects,
             self.final.effect_parameters,
             self.final.effect_covariances,
             self.shared,
             rivals,
+            ranges,
             strict=True,
         ):
             assert isinstance(effect, Effect)
@@ -300,7 +305,7 @@ class LoopResult:
                 "kind": effect.kind,
                 "axis": effect.axis,
                 "label": effect.label,
-                "parameters": effect.parameters(values, cov),
+                "parameters": {**effect.parameters(values, cov), **searched},
             }
             if part.count:
                 entry["shared_with_errors"] = {
@@ -2877,6 +2882,13 @@ def _uncorroborated(effect: Effect, energy: FloatArray, readings: Readings) -> s
     reflector mount that shifts, a beam that drifts): it is the machine's only when a second line
     shows it too. A reversal or a cycle locked to the position needs no second line: no set-up
     artefact follows the approach direction or repeats with the position.
+
+    Nor does a drift in time shown by the earliest linear line that moves its axis: a warm-up
+    that settles before the next such line is seen by that line alone, the later ones reading
+    the settled scale, which the 21 errors absorb; asking for a second line refuses every such
+    warm-up (blind 50121: 24.9 ppm, τ 24 min, settled within x_linear; only x_linear shows it).
+    A beam that drifts during that very line reads the same, and the drift's kept τ then has a
+    wide range (report.json ``time_constant_range_s``, :func:`_time_constant_doubts`).
     """
     drift_in_time = isinstance(effect, ThermalDrift) and effect.mode == "time"
     if effect.kind not in NEEDS_TWO_LINES and not drift_in_time:
@@ -2884,11 +2896,30 @@ def _uncorroborated(effect: Effect, energy: FloatArray, readings: Readings) -> s
     showing = np.flatnonzero(energy >= SHOWN_SIGMA2)
     if showing.size >= 2:
         return None
+    if (
+        drift_in_time
+        and showing.size == 1
+        and int(showing[0]) == _earliest_along(effect.axis, readings)
+    ):
+        return None
     where = readings.lines[int(np.argmax(energy))].name
     return (
         f"only line {where} shows it beyond what the 21 errors absorb: one line cannot tell a "
         "machine effect from an artefact of its own set-up; refused"
     )
+
+
+def _earliest_along(axis: str | None, readings: Readings) -> int | None:
+    """The linear line that moves ``axis`` and was started first, or None when none does."""
+    k = AXIS_INDEX[axis] if axis is not None else -1
+    moving = [
+        i
+        for i, line in enumerate(readings.lines)
+        if k >= 0 and line.spec.quantity == "linear" and abs(line.spec.direction[k]) > 1e-6
+    ]
+    if not moving:
+        return None
+    return min(moving, key=lambda i: float(readings.time_s[readings.line == i].min()))
 
 
 def _held_out_gain(
@@ -4218,7 +4249,10 @@ def _close_loop(
     current, cv, kept = state.current, state.cv, state.kept
     if any(isinstance(e, AbbeOffset) for e in kept):
         current, cv = fit.converged(kept, current.model)
-    time_doubts = _time_constant_doubts(fit, current, kept, base, options)
+    time_doubts, time_ranges, time_warnings = _time_constant_doubts(
+        fit, current, kept, base, options
+    )
+    warnings += time_warnings
     report(progress, 0.9, "choosing the basis spacing by cross-validation")
     current, cv, spacing = _choose_spacing(
         measurement, readings, options, redundant, current, cv, cancel
@@ -4247,6 +4281,7 @@ def _close_loop(
     current = _with_surface_doubt(current, state.surface_doubt)
     report(progress, 1.0, "loop closed")
     rivals = tuple(state.rivals.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
+    ranges = tuple(time_ranges.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
     return LoopResult(
         base,
         current,
@@ -4258,6 +4293,7 @@ def _close_loop(
         shared,
         spacing,
         rivals,
+        ranges,
     )
 
 
@@ -4558,17 +4594,25 @@ def _time_constant_doubts(
     kept: list[Effect],
     base: Identification,
     options: LoopOptions,
-) -> list[FloatArray]:
+) -> tuple[list[FloatArray], dict[tuple[str, str | None, str], dict[str, object]], list[str]]:
     """Per kept drift whose time constant the loop searched: the moves of the 21 errors to the
-    refits at either end of τ's standard uncertainty, one per row (:func:`_with_shape_doubt`).
+    refits at either end of τ's standard uncertainty, one per row (:func:`_with_shape_doubt`);
+    by the drift's key, those ends and the drift's size there (for report.json); and a warning
+    for each drift in time that one line alone shows.
 
     A refit holds τ fixed, so the errors' covariance says nothing of how they move with it, and
     τ trades against the drift's scale and the static scale of its axis: the machine at the
     first reading is what the drift is not (blind 38021: τ 240 min against 192 injected; the Y
-    positioning 0.52 µm off, 6.5 of its stated standard uncertainties). The ends are where the
-    χ² the drift removes, over the model without it, falls one σ² of the final fit below its
-    best, searched outward from the kept τ within the range the options allow."""
+    positioning 0.52 µm off, 6.5 of its stated standard uncertainties). Nor does the drift's
+    own standard uncertainty, taken at the kept τ: a drift that one line shows (the earliest
+    along its axis, :func:`_uncorroborated`) reaches nearly the same course with a larger scale
+    and a slower τ (blind 4047: 54 ± 5.7 ppm at τ 99 min for 25 ppm at 41 min). The ends are
+    where the χ² the drift removes, over the model without it, falls one σ² of the final fit
+    below its best, searched outward from the kept τ within the range the options allow; an
+    end at that range's limit means the data bound τ no closer on that side."""
     rows: list[FloatArray] = []
+    ranges: dict[tuple[str, str | None, str], dict[str, object]] = {}
+    warnings: list[str] = []
     low, high = (float(np.log(t)) for t in options.time_constants_s)
     for effect in kept:
         if not isinstance(effect, ThermalDrift) or not effect.searched:
@@ -4582,14 +4626,47 @@ def _time_constant_doubts(
         start = float(np.log(effect.time_constant_s))
         # one σ² of the final fit, in the units of the model without the drift
         level = gain(start) - _Tester(current).sigma2 / max(tester.sigma2, 1e-300)
+        index = next(i for i, e in enumerate(current.effects) if e is effect)
+        taus, sizes = [], []
         for limit in (low, high):
             end = _where_below(gain, level, start, limit)
+            taus.append(float(np.exp(end)))
             if end == start:
+                sizes.append(float(current.effect_parameters[index][0]))
                 continue
             moved = replace(effect, time_constant_s=float(np.exp(end)))
             refit = fit.identify([moved if e is effect else e for e in kept], current.model)
             rows.append(refit.model.parameters - current.model.parameters)
-    return rows
+            moved_at = next(i for i, e in enumerate(refit.effects) if e is moved)
+            sizes.append(float(refit.effect_parameters[moved_at][0]))
+        size = "scale" if effect.mode == "time" else "expansion"
+        unit = "ppm" if effect.mode == "time" else "ppm_per_c"
+        ranges[effect.key] = {
+            "time_constant_range_s": taus,
+            f"{size}_at_range_{unit}": sizes,
+        }
+        readings = tester.ident.readings
+        values = current.effect_parameters[index]
+        energy = tester.line_energy(effect.design(readings, tester.ident.model) @ values)
+        showing = np.flatnonzero(energy >= SHOWN_SIGMA2)
+        if effect.mode == "time" and showing.size == 1:
+            line = int(showing[0])
+            shortest = " (the shortest tried)" if np.isclose(np.log(taus[0]), low) else ""
+            longest = " (the longest tried)" if np.isclose(np.log(taus[1]), high) else ""
+            first = (
+                f", the first along {effect.axis}"
+                if line == _earliest_along(effect.axis, readings)
+                else ""
+            )
+            warnings.append(
+                f"the {effect.label} is shown by line {readings.lines[line].name} alone{first}: "
+                "a warm-up that settles within it and a beam that drifts during it read alike "
+                f"there; τ is between {taus[0] / 60:.3g} min{shortest} and "
+                f"{taus[1] / 60:.3g} min{longest} and the scale between "
+                f"{min(sizes):.3g} and {max(sizes):.3g} ppm (one standard uncertainty); "
+                "a second line along the axis early in the session tells them apart"
+            )
+    return rows, ranges, warnings
 
 
 def _where_below(gain: Callable[[float], float], level: float, start: float, limit: float) -> float:
@@ -5250,7 +5327,8 @@ def _simplest_best(passing: list[_Trial], tie: float, margin: float) -> _Trial |
     a bump a finer spline follows as well is still a bump), then the one that leaves the model
     the fewest effects, then the one that adds the fewest parameters (fitted and searched) to
     it: a drift driven by the logged temperature before one whose time constant had to be
-    estimated, when both explain alike. A variant of a kept effect (a surface of another order,
+    estimated, when both explain alike, and before one driven by time alone when both estimate
+    it (:func:`_driven_by_time`). A variant of a kept effect (a surface of another order,
     a cycle's period refined, :func:`_with`) replaces it and claims nothing new of the machine:
     ranked on parameters alone, a second surface EZ over X×Y adding two fewer than the kept
     surface's next order was kept beside it, a second claim on Z where the machine had one
@@ -5280,9 +5358,18 @@ def _simplest_best(passing: list[_Trial], tie: float, margin: float) -> _Trial |
             t.finding.effect.kind == "higher_order",
             len(t.refit.effects),
             _model_terms(t.refit),
+            _driven_by_time(t.finding.effect),
             t.score,
         ),
     )
+
+
+def _driven_by_time(effect: Effect) -> bool:
+    """Whether ``effect`` is a drift whose course is a time constant alone, where a logged
+    temperature could drive it: of two that tie, the one the log drives states an expansion
+    that a temperature compensates (blind 8028: X's drift read as a first-order response between
+    two logs and as a course in time alone, 0.1332 µm held out both)."""
+    return isinstance(effect, ThermalDrift) and effect.mode == "time"
 
 
 def _richer(trial: _Trial, than: _Trial) -> bool:
