@@ -2886,7 +2886,8 @@ def _uncorroborated(effect: Effect, energy: FloatArray, readings: Readings) -> s
     Nor does a drift in time shown by the earliest linear line that moves its axis: a warm-up
     that settles before the next such line is seen by that line alone, the later ones reading
     the settled scale, which the 21 errors absorb; asking for a second line refuses every such
-    warm-up (blind 50121: 24.9 ppm, τ 24 min, settled within x_linear; only x_linear shows it).
+    warm-up (blind 50121, direct plan: X warming by 24.9 ppm with τ 24 min; only x_linear, the
+    first line along X, shows it).
     A beam that drifts during that very line reads the same, and the drift's kept τ then has a
     wide range (report.json ``time_constant_range_s``, :func:`_time_constant_doubts`).
     """
@@ -4660,8 +4661,9 @@ def _time_constant_doubts(
             )
             warnings.append(
                 f"the {effect.label} is shown by line {readings.lines[line].name} alone{first}: "
-                "a warm-up that settles within it and a beam that drifts during it read alike "
-                f"there; τ is between {taus[0] / 60:.3g} min{shortest} and "
+                "the axis warming while that line was measured, settled for the later lines, "
+                "reads there as a beam drifting during it would; τ is between "
+                f"{taus[0] / 60:.3g} min{shortest} and "
                 f"{taus[1] / 60:.3g} min{longest} and the scale between "
                 f"{min(sizes):.3g} and {max(sizes):.3g} ppm (one standard uncertainty); "
                 "a second line along the axis early in the session tells them apart"
@@ -5327,8 +5329,7 @@ def _simplest_best(passing: list[_Trial], tie: float, margin: float) -> _Trial |
     a bump a finer spline follows as well is still a bump), then the one that leaves the model
     the fewest effects, then the one that adds the fewest parameters (fitted and searched) to
     it: a drift driven by the logged temperature before one whose time constant had to be
-    estimated, when both explain alike, and before one driven by time alone when both estimate
-    it (:func:`_driven_by_time`). A variant of a kept effect (a surface of another order,
+    estimated, when both explain alike. A variant of a kept effect (a surface of another order,
     a cycle's period refined, :func:`_with`) replaces it and claims nothing new of the machine:
     ranked on parameters alone, a second surface EZ over X×Y adding two fewer than the kept
     surface's next order was kept beside it, a second claim on Z where the machine had one
@@ -5358,18 +5359,9 @@ def _simplest_best(passing: list[_Trial], tie: float, margin: float) -> _Trial |
             t.finding.effect.kind == "higher_order",
             len(t.refit.effects),
             _model_terms(t.refit),
-            _driven_by_time(t.finding.effect),
             t.score,
         ),
     )
-
-
-def _driven_by_time(effect: Effect) -> bool:
-    """Whether ``effect`` is a drift whose course is a time constant alone, where a logged
-    temperature could drive it: of two that tie, the one the log drives states an expansion
-    that a temperature compensates (blind 8028: X's drift read as a first-order response between
-    two logs and as a course in time alone, 0.1332 µm held out both)."""
-    return isinstance(effect, ThermalDrift) and effect.mode == "time"
 
 
 def _richer(trial: _Trial, than: _Trial) -> bool:
