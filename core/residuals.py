@@ -2887,9 +2887,9 @@ def _uncorroborated(effect: Effect, energy: FloatArray, readings: Readings) -> s
     that settles before the next such line is seen by that line alone, the later ones reading
     the settled scale, which the 21 errors absorb; asking for a second line refuses every such
     warm-up (blind 50121, direct plan: X warming by 24.9 ppm with τ 24 min; only x_linear, the
-    first line along X, shows it).
-    A beam that drifts during that very line reads the same, and the drift's kept τ then has a
-    wide range (report.json ``time_constant_range_s``, :func:`_time_constant_doubts`).
+    first line along X, shows it). A beam that drifts during that very line reads the same, and
+    the drift's kept τ then has a wide range (report.json ``time_constant_range_s``,
+    :func:`_time_constant_doubts`).
     """
     drift_in_time = isinstance(effect, ThermalDrift) and effect.mode == "time"
     if effect.kind not in NEEDS_TWO_LINES and not drift_in_time:
@@ -2912,11 +2912,13 @@ def _uncorroborated(effect: Effect, energy: FloatArray, readings: Readings) -> s
 
 def _earliest_along(axis: str | None, readings: Readings) -> int | None:
     """The linear line that moves ``axis`` and was started first, or None when none does."""
-    k = AXIS_INDEX[axis] if axis is not None else -1
+    if axis is None:
+        return None
+    k = AXIS_INDEX[axis]
     moving = [
         i
         for i, line in enumerate(readings.lines)
-        if k >= 0 and line.spec.quantity == "linear" and abs(line.spec.direction[k]) > 1e-6
+        if line.spec.quantity == "linear" and abs(line.spec.direction[k]) > 1e-6
     ]
     if not moving:
         return None
@@ -4646,29 +4648,44 @@ def _time_constant_doubts(
             "time_constant_range_s": taus,
             f"{size}_at_range_{unit}": sizes,
         }
-        readings = tester.ident.readings
-        values = current.effect_parameters[index]
-        energy = tester.line_energy(effect.design(readings, tester.ident.model) @ values)
-        showing = np.flatnonzero(energy >= SHOWN_SIGMA2)
-        if effect.mode == "time" and showing.size == 1:
-            line = int(showing[0])
-            shortest = " (the shortest tried)" if np.isclose(np.log(taus[0]), low) else ""
-            longest = " (the longest tried)" if np.isclose(np.log(taus[1]), high) else ""
-            first = (
-                f", the first along {effect.axis}"
-                if line == _earliest_along(effect.axis, readings)
-                else ""
-            )
-            warnings.append(
-                f"the {effect.label} is shown by line {readings.lines[line].name} alone{first}: "
-                "the axis warming while that line was measured, settled for the later lines, "
-                "reads there as a beam drifting during it would; τ is between "
-                f"{taus[0] / 60:.3g} min{shortest} and "
-                f"{taus[1] / 60:.3g} min{longest} and the scale between "
-                f"{min(sizes):.3g} and {max(sizes):.3g} ppm (one standard uncertainty); "
-                "a second line along the axis early in the session tells them apart"
-            )
+        if effect.mode == "time":
+            values = current.effect_parameters[index]
+            warning = _one_line_drift(effect, values, tester, taus, sizes, options)
+            warnings += [warning] if warning else []
     return rows, ranges, warnings
+
+
+def _one_line_drift(
+    effect: ThermalDrift,
+    values: FloatArray,
+    tester: _Tester,
+    taus: Sequence[float],
+    sizes: Sequence[float],
+    options: LoopOptions,
+) -> str | None:
+    """The warning for a kept drift in time (``values`` its fitted scale) that one line alone
+    shows beyond what the model without it (``tester``) absorbs, with τ's standard-uncertainty
+    range (``taus``) and the scale at its ends (``sizes``); None when it shows on more lines."""
+    readings = tester.ident.readings
+    energy = tester.line_energy(effect.design(readings, tester.ident.model) @ values)
+    showing = np.flatnonzero(energy >= SHOWN_SIGMA2)
+    if showing.size != 1:
+        return None
+    line = int(showing[0])
+    shortest, longest = options.time_constants_s
+    low = " (the shortest tried)" if np.isclose(taus[0], shortest) else ""
+    high = " (the longest tried)" if np.isclose(taus[1], longest) else ""
+    first = (
+        f", the first along {effect.axis}" if line == _earliest_along(effect.axis, readings) else ""
+    )
+    return (
+        f"the {effect.label} is shown by line {readings.lines[line].name} alone{first}: the axis "
+        "warming while that line was measured, settled for the later lines, reads there as a "
+        f"beam drifting during it would; τ is between {taus[0] / 60:.3g} min{low} and "
+        f"{taus[1] / 60:.3g} min{high} and the scale between {min(sizes):.3g} and "
+        f"{max(sizes):.3g} ppm (one standard uncertainty); a second line along the axis early in "
+        "the session tells them apart"
+    )
 
 
 def _where_below(gain: Callable[[float], float], level: float, start: float, limit: float) -> float:
