@@ -152,6 +152,36 @@ def test_local_guideway_defect_is_located_and_sized() -> None:
     _clean(report)
 
 
+def test_a_free_bump_beside_its_function_spans_with_it_what_it_did_and_no_more() -> None:
+    # a free profile over 250 ± 160 mm beside EXX's splines every 50 mm holds nothing the
+    # splines lying within its span can hold; together with the function it spans what it
+    # spanned (the fit and its predictions do not change), and it still vanishes outside its span
+    from volucal.core.effects import LocalDefect
+
+    machine = sim.random_truth(seed=11).machine
+    low, high = machine.stroke("X")
+    basis = BSplineBasis.uniform(low, high, 50.0)
+    q = np.linspace(low, high, 801)  # the stroke as the share is fitted over it
+    raw = LocalDefect("X", "X", 250.0, 160.0, "free")._bump(q)
+    held = LocalDefect("X", "X", 250.0, 160.0, "free", machine, 50.0)._bump(q)
+    functions = basis.design(q)
+    within = [i for i in range(basis.size) if basis.knots[i] >= 90 and basis.knots[i + 4] <= 410]
+    assert len(within) >= 2
+    # orthogonal to the splines within the span, not to the others
+    assert np.abs(functions[:, within].T @ held).max() < 1e-9 * np.abs(functions.T @ raw).max()
+    rank = np.linalg.matrix_rank
+    assert rank(np.hstack([functions, held])) == rank(np.hstack([functions, raw]))
+    together = np.hstack([functions, raw, held])
+    assert rank(together) == rank(np.hstack([functions, raw]))
+    outside = (q < 90.0) | (q > 410.0)
+    assert not held[outside].any()
+    # a bump narrower than every spline keeps its profile
+    narrow = LocalDefect("X", "X", 180.0, 18.0, "free")
+    assert np.array_equal(
+        narrow._bump(q), replace(narrow, machine=machine, beside_spacing_mm=50.0)._bump(q)
+    )
+
+
 def _fine_straightness_truth() -> tuple[ErrorModel, np.ndarray]:
     """A machine whose EZX has a 60 mm wave a 50 mm basis cannot hold, and that part."""
     truth = sim.random_truth(seed=11)

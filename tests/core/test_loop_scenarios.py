@@ -257,6 +257,24 @@ def test_a_cycle_is_placed_with_the_harmonic_it_is_fitted_with_and_leaves_no_bum
     assert kept["parameters"]["period_mm"] == pytest.approx(truth.parameters["period"], rel=2e-4)
 
 
+def test_a_bump_its_function_cancels_is_no_defect_of_its_size() -> None:
+    """Seed 5400167 (demo plan): cycles of X (35.3 mm) and Z, a reversal of X. The cycle of X,
+    fitted a hair long, leaves 0.2 µm; a bump of X over 351 ± 100 mm took it at 30.4 µm against
+    as much of EXX, no reading changing by more than 0.21 µm, and then a second bump. A bump
+    whose profile the readings see less than a tenth of is refused as implausible, with why."""
+    scenario = make_scenario(5400167)
+    report = _loop_report(scenario)
+    kept = {(e["kind"], e["axis"]) for e in report["effects"]}
+    assert kept == {("cyclic", "X"), ("cyclic", "Z"), ("reversal", "X")}
+    cancelled = [
+        s
+        for s in report["loop"]
+        if s["effect"]["kind"] == "local" and "its error function cancels it" in s["reason"]
+    ]
+    assert cancelled and all(s["verdict"] == "implausible" for s in cancelled)
+    assert all(abs(s["effect"]["parameters"]["amplitude_um"]) > 10.0 for s in cancelled)
+
+
 @pytest.mark.parametrize(("seed", "line"), [(3500036, "x_linear"), (3500071, "z_linear_far")])
 def test_a_set_up_error_fitted_within_its_uncertainty_of_nothing_is_not_kept(
     seed: int, line: str
