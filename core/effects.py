@@ -599,16 +599,17 @@ class LocalDefect(Effect):
 
     def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:
         peak, at, where = self._peak(values)
+        # where the defect is and how large first: the console shows an effect's first few
         return {
             "direction": self.direction,
-            "center_mm": self.center_mm,
-            "width_mm": self.width_mm,
-            "profile": self.profile,
-            "amplitude_um": peak,
             "peak_mm": where,
+            "amplitude_um": peak,
             "amplitude_std_um": float(np.sqrt(max(at @ covariance @ at, 0.0)))
             if covariance.size
             else float("nan"),
+            "center_mm": self.center_mm,
+            "width_mm": self.width_mm,
+            "profile": self.profile,
         }
 
     def magnitude_um(self, values: FloatArray) -> float:
