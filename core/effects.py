@@ -594,7 +594,11 @@ class LocalDefect(Effect):
 
     def design(self, readings: Readings, model: ErrorModel) -> FloatArray:
         k = AXIS_INDEX[self.direction]
-        bump = self._bump(readings.position_mm[:, AXIS_INDEX[self.axis_name]])
+        # evaluated once per distinct position: runs repeat their targets
+        positions, inverse = np.unique(
+            readings.position_mm[:, AXIS_INDEX[self.axis_name]], return_inverse=True
+        )
+        bump = self._bump(positions)[inverse]
         return _displacement(readings, k)[:, None] * bump
 
     def parameters(self, values: FloatArray, covariance: FloatArray) -> dict[str, object]:

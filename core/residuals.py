@@ -2276,14 +2276,7 @@ def _judge(
             left,
         )
 
-    why = effect.implausible(values, covariance, options.plausibility)
-    if why is None and isinstance(effect, AbbeOffset) and fit is not None:
-        why = _implausible_once_settled(fit, refit, index, options)
-    if why is None and isinstance(effect, LocalDefect):
-        lengths = ~refit.readings.is_angular
-        why = _cancelled_by_its_function(
-            contribution[lengths], (current.residual - refit.residual)[lengths]
-        )
+    why = _implausible_fitted(refit, index, options, fit, current)
     if why is not None:
         return refused(f"implausible: {why}", "implausible")
     null = _indistinguishable_from_nothing(values, covariance)
@@ -6032,6 +6025,32 @@ def _implausible_in(fit: Identification, index: int, options: LoopOptions) -> st
     return effect.implausible(values, covariance, options.plausibility)
 
 
+def _implausible_fitted(
+    refit: Identification,
+    index: int,
+    options: LoopOptions,
+    fit: _Fitter | None,
+    without: Identification | None,
+) -> str | None:
+    """Why the ``index``-th effect of ``refit`` is no effect a set-up or a machine has, if it
+    is not: parameters beyond what any set-up allows (:meth:`Effect.implausible`); an Abbe
+    offset that is so once its lever arm and the angles agree (with ``fit``,
+    :func:`_implausible_once_settled`); a bump that its error function cancels (against
+    ``without``, the fit without it, :func:`_cancelled_by_its_function`). A candidate's step and
+    the final audit, with every kept effect in, ask the same."""
+    why = _implausible_in(refit, index, options)
+    effect = refit.effects[index]
+    if why is None and isinstance(effect, AbbeOffset) and fit is not None:
+        why = _implausible_once_settled(fit, refit, index, options)
+    if why is None and isinstance(effect, LocalDefect) and without is not None:
+        lengths = ~refit.readings.is_angular
+        contribution = effect.design(refit.readings, refit.model) @ refit.effect_parameters[index]
+        why = _cancelled_by_its_function(
+            contribution[lengths], (without.residual - refit.residual)[lengths]
+        )
+    return why
+
+
 def _any_implausible(fit: Identification, options: LoopOptions) -> str | None:
     """Why one of ``fit``'s effects has parameters no set-up allows, if one has."""
     return next(
@@ -6085,9 +6104,13 @@ def _audit(
         for index, effect in enumerate(current.effects):
             assert isinstance(effect, Effect)
             values = current.effect_parameters[index]
-            implausible = _implausible_in(current, index, options)
-            if implausible is None and isinstance(effect, AbbeOffset):
-                implausible = _implausible_once_settled(fit, current, index, options)
+            # a bump is asked what the readings see of it against the fit without it
+            without = (
+                fit.identify([e for e in kept if e is not effect], current.model)
+                if isinstance(effect, LocalDefect)
+                else None
+            )
+            implausible = _implausible_fitted(current, index, options, fit, without)
             if implausible is not None:
                 # plausible when kept, moved past the limits by the effects kept after it
                 reason = f"implausible with every kept effect in the model: {implausible}"
