@@ -27,9 +27,9 @@ from volucal.core.effects import (
 )
 from volucal.core.identify import identify
 from volucal.core.io.plan import write_plan
+from volucal.core.loop_tester import _Tester
 from volucal.core.machine import PAPER_MACHINE
 from volucal.core.measurement import Plan
-from volucal.core.residuals import _Tester
 from volucal.core.simulate import LaserSetup, VirtualMachine, random_truth
 
 HERE = Path(__file__).resolve().parent

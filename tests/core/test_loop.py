@@ -15,16 +15,15 @@ from volucal.core import plans
 from volucal.core import simulate as sim
 from volucal.core.calibrate import summary_table
 from volucal.core.errors import BSplineBasis, ErrorFunction, ErrorModel, gauge_null_space
-from volucal.core.measurement import Line, LineData, Measurement
-from volucal.core.residuals import (
-    VERDICTS,
-    LoopOptions,
+from volucal.core.loop_judge import VERDICTS
+from volucal.core.loop_unexplained import (
     _line_test,
     _step_in_time,
     _systematic,
     _systematic_lines,
-    close_loop,
 )
+from volucal.core.measurement import Line, LineData, Measurement
+from volucal.core.residuals import LoopOptions, close_loop
 
 NOISE = 0.1
 STEP_MM = 12.0  # irregular targets about every 12 mm (ISO 230-2 style), 5 bidirectional runs
@@ -458,8 +457,8 @@ def test_the_step_in_time_is_exact_without_noise_and_holds_its_false_alarm_level
     less its targets' means per direction, is sized exactly at its first reading, on the last
     40 readings as on all but the first; noise alone is held to its level (a Bonferroni bound
     over the splits: at most the level)."""
+    from volucal.core.loop_tester import _cell_key
     from volucal.core.readings import flatten
-    from volucal.core.residuals import _cell_key
 
     truth = sim.random_truth(seed=19)
     vm = sim.VirtualMachine(truth, (), seed=19, laser=sim.LaserSetup(noise_um=0.2))
@@ -592,7 +591,8 @@ def test_cycles_below_half_the_spacing_are_searched_only_where_no_spacing_repeat
     """Targets every 12 mm repeat at 1/12 mm⁻¹: a cycle below 6 mm has aliases as good, and is
     not searched. Targets jittered ±6 mm repeat at no lag (their spectral window stays below
     0.5), so the search runs down to 2 mm and no warning says a shorter cycle goes unseen."""
-    from volucal.core.residuals import _irregular_targets, flatten
+    from volucal.core.loop_search import _irregular_targets
+    from volucal.core.readings import flatten
 
     truth = sim.random_truth(seed=16)
     vm = sim.VirtualMachine(truth, (), seed=16, laser=sim.LaserSetup(noise_um=NOISE))
@@ -684,7 +684,7 @@ def test_the_console_says_why_an_effect_was_taken_out_and_what_was_kept_together
 
 def test_a_refit_within_its_uncertainty_of_nothing_is_refused_on_its_wald_statistic() -> None:
     # χ² with 1 degree of freedom: 2 σ leaves 4.6 % (refused at the 1 % level), 3 σ 0.27 %
-    from volucal.core.residuals import NULL_LEVEL, _indistinguishable_from_nothing
+    from volucal.core.loop_judge import NULL_LEVEL, _indistinguishable_from_nothing
 
     assert NULL_LEVEL == 0.01
     one = np.array([[0.25]])  # σ = 0.5

@@ -104,8 +104,8 @@ def test_a_shape_doubt_moves_to_the_chosen_basis_unchanged_where_both_bases_hold
     # (a cubic along each stroke, a squareness) must arrive unchanged
     from volucal.core.errors import AXIS_ERROR_IDS, ERROR_INFO, SQUARENESS_IDS, ErrorModel
     from volucal.core.errors import default_basis as basis
+    from volucal.core.loop_end import _in_basis
     from volucal.core.machine import PAPER_MACHINE
-    from volucal.core.residuals import _in_basis
 
     fine = ErrorModel.zero(PAPER_MACHINE, lambda axis, _: basis(PAPER_MACHINE, axis, 50.0))
     coarse = ErrorModel.zero(PAPER_MACHINE, lambda axis, _: basis(PAPER_MACHINE, axis, 150.0))

@@ -756,7 +756,7 @@ def test_a_line_that_shows_a_bump_and_is_predicted_worse_with_it_refuses_it() ->
     # Z with 17.4 σ² and lost 14.7 σ² held out; the XZ diagonals that gained are not asked
     from types import SimpleNamespace
 
-    from volucal.core.residuals import _contradicted_by_a_line
+    from volucal.core.loop_judge import _contradicted_by_a_line
 
     names = ("diag_xz_pp", "diag_xz_pp_b", "diag_xz_pm_b", "x_linear")
     readings = SimpleNamespace(lines=[SimpleNamespace(name=n) for n in names])

@@ -229,7 +229,7 @@ def _add_outside(rng, scenario, info, lines, session_s) -> None:  # type: ignore
 def on_line(where: str, name: str) -> bool:
     """Whether the "where" of an unexplained report names line ``name``.
 
-    core/residuals.py writes "line NAME at P mm", "line NAME, from run to run" or "line NAME,
+    core/loop_unexplained.py writes "line NAME at P mm", "line NAME, from run to run" or "line NAME,
     run R at P mm"; the name must
     end there, so that line x_lin_1 is not matched by a report on x_lin_10.
     """
