@@ -1,5 +1,7 @@
 """The closed loop's F tests: a candidate's columns against what the current model leaves,
-after projecting out what the model can already absorb, and the diagnosis they fill."""
+after projecting out what the model can already absorb, and the diagnosis they fill; with the
+measures every part of the loop uses (the RMS over chosen readings, the exchange of µrad for µm,
+a run's cell of a line, the Bonferroni correction)."""
 
 from __future__ import annotations
 

@@ -275,6 +275,40 @@ def test_a_bump_its_function_cancels_is_no_defect_of_its_size() -> None:
     assert all(abs(s["effect"]["parameters"]["amplitude_um"]) > 10.0 for s in cancelled)
 
 
+def test_the_final_audit_takes_out_a_bump_its_function_cancels() -> None:
+    """The same machine (seed 5400167): the bump its step refused, put in the model beside the
+    three effects the loop kept, is taken out by the final audit for the same reason. What the
+    readings see of a kept bump can shrink as later effects come in; the audit, with every kept
+    effect in the model, asks it against the fit without it, as its step did."""
+    from volucal.core.identify import cross_validate, identify
+    from volucal.core.io.plan import import_plan, load_plan
+    from volucal.core.loop_audit import _audit
+    from volucal.core.loop_compare import _Fitter
+    from volucal.core.readings import flatten
+    from volucal.core.residuals import LoopOptions, close_loop
+
+    scenario = make_scenario(5400167)
+    info, measured = measure(scenario, scenario.seed)
+    with tempfile.TemporaryDirectory(prefix="volucal-scenario-") as tmp:
+        measurement = import_plan(load_plan(write_session(Path(tmp), info, measured))).measurement
+    result = close_loop(measurement)
+    kept = list(result.final.effects)
+    bump = next(s.finding.effect for s in result.steps if s.finding.effect.kind == "local")
+    options = LoopOptions()
+    readings = flatten(measurement)
+    base = identify(measurement, options.identify, readings=readings)
+    redundant = base.identifiability.redundant_lines
+    cv_base = cross_validate(base.system, readings, redundant)
+    fit = _Fitter(measurement, readings, options, redundant, None)
+    before, _ = fit(kept, base.model)
+    current, cv = fit([*kept, bump], before.model)
+    steps: list = []
+    *_, left = _audit(fit, current, cv, [*kept, bump], base, cv_base, options, steps, 9)
+    assert left == kept
+    assert [s.finding.effect for s in steps] == [bump]
+    assert steps[0].stage == "audit" and "its error function cancels it" in steps[0].reason
+
+
 @pytest.mark.parametrize(("seed", "line"), [(3500036, "x_linear"), (3500071, "z_linear_far")])
 def test_a_set_up_error_fitted_within_its_uncertainty_of_nothing_is_not_kept(
     seed: int, line: str
