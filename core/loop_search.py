@@ -555,6 +555,9 @@ def _search_local(diagnosis: _Diagnosis, axis: str) -> None:
             continue
         center, sigma = float(best[1]), float(best[2])
         width = max(FREE_SPAN_SIGMAS * sigma, FREE_SPAN_SIGMAS * narrowest)
+        # a place a kept bump already spans is not refined (the refinement rarely leaves it)
+        if _within_a_kept_bump(diagnosis, axis, direction, center, width):
+            continue
         if _worth_refining(diagnosis, LocalDefect(axis, direction, center, sigma), trials):
             center, width = _refine_local(
                 diagnosis, axis, direction, center, width, (low, high), narrowest
