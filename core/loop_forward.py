@@ -447,7 +447,7 @@ def _re_placed(
             if effect is candidate or not effect.searched:
                 continue
             without = _without(effect, effects, fit, current.model, None)
-            better = _re_estimate(effect, without, machine, options.alpha)
+            better = _re_estimate(effect, without, machine, options.alpha, _Tester(trial.refit))
             if better is None:
                 continue
             trial_effects = [better if e is effect else e for e in effects]
