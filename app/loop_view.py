@@ -37,7 +37,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 from volucal.core.identify import residual_rms
-from volucal.core.residuals import TOGETHER, LoopOptions
+from volucal.core.residuals import ESTIMATED_AGAIN, TOGETHER, LoopOptions
 from volucal.core.userror import UserError
 
 from . import evidence, jobs, plots
@@ -473,8 +473,9 @@ class LoopView(View):
 
 
 def _kept(verdict: Any) -> str:
-    """A step kept: two set-up errors kept in one refit say so."""
-    return TOGETHER if verdict == TOGETHER else "kept"
+    """A step kept: two set-up errors kept in one refit say so, and a kept effect placed again
+    (a cycle's period, a drift's time constant) is no second effect."""
+    return verdict if verdict in (TOGETHER, ESTIMATED_AGAIN) else "kept"
 
 
 def _rejected(verdict: Any) -> str:

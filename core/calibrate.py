@@ -24,7 +24,15 @@ from .errors import ErrorModel
 from .identify import Identification, UncertaintyBudget, parameters_report
 from .loop_source import LoopSource
 from .progress import CancelToken, ProgressCallback, check, report
-from .residuals import BOTH_WAYS, PLACED_AGAIN, TOGETHER, LoopOptions, LoopResult, close_loop
+from .residuals import (
+    BOTH_WAYS,
+    ESTIMATED_AGAIN,
+    PLACED_AGAIN,
+    TOGETHER,
+    LoopOptions,
+    LoopResult,
+    close_loop,
+)
 from .userror import UserError
 
 FloatArray = NDArray[np.float64]
@@ -348,6 +356,8 @@ def summary_table(result: Mapping[str, Any]) -> str:
         # why not, in a few words; two set-up errors kept in one refit say so
         kept = "yes" if step["kept"] else f"no: {step['verdict']}"
         kept += ", together" if step["verdict"] == TOGETHER else ""
+        # a kept effect placed again is no second effect
+        kept += f", {ESTIMATED_AGAIN}" if step["verdict"] == ESTIMATED_AGAIN else ""
         lines.append(
             f"{step['step']:>2} {label:<{width}} "
             f"{step['rms_um']['before']:6.3f} {step['rms_um']['after']:6.3f}"

@@ -20,7 +20,7 @@ from .identify import (
     identify,
     residual_rms,
 )
-from .loop_records import Finding, IntArray, LoopOptions, Step, group_rms
+from .loop_records import ESTIMATED_AGAIN, Finding, IntArray, LoopOptions, Step, group_rms
 from .loop_tester import _rms
 from .machine import Machine
 from .measurement import Measurement
@@ -289,7 +289,7 @@ def _later_step(
         fitted.effect_parameters[index], fitted.effect_covariances[index]
     )
     where, verdict = {
-        "refine": ("estimated again", "estimated again"),
+        "refine": ("estimated again", ESTIMATED_AGAIN),
         "backward": ("backward pass", "taken out"),
         "audit": ("final audit", "taken out"),
     }[stage]

@@ -207,3 +207,8 @@ def group_rms(identification: Identification) -> dict[str, float]:
             identification.residual[readings.line == index]
         )
     return {g: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for g, v in sorted(groups.items())}
+
+
+#: The verdict of a step that estimated a kept effect's searched quantity again (a cycle's period,
+#: a drift's time constant; stage "refine"): the effect stays, placed where it fits better.
+ESTIMATED_AGAIN = "estimated again"

@@ -91,6 +91,7 @@ from .loop_end import (
 from .loop_forward import AUDIT_ROUNDS, _forward, _prune
 from .loop_judge import BOTH_WAYS, PLACED_AGAIN, TOGETHER
 from .loop_records import (
+    ESTIMATED_AGAIN,
     EffectKey,
     Finding,
     LoopOptions,
@@ -408,6 +409,7 @@ def _close_loop(
 
 __all__ = [
     "BOTH_WAYS",
+    "ESTIMATED_AGAIN",
     "PLACED_AGAIN",
     "TOGETHER",
     "Finding",

@@ -658,6 +658,7 @@ def test_the_console_says_why_an_effect_was_taken_out_and_what_was_kept_together
             {**step, "step": 2, "kept": False, "verdict": "below margin", "stage": "forward"},
             {**step, "step": 2, "kept": False, "verdict": "taken out", "stage": "audit"},
             {**step, "step": 3, "kept": True, "verdict": "kept together", "stage": "forward"},
+            {**step, "step": 4, "kept": True, "verdict": "estimated again", "stage": "refine"},
         ],
         "residual_rms_um": {"before_loop": 0.5, "after_loop": 0.5},
         "cv_rms_um": {"before_loop": 0.5, "after_loop": 0.5, "method": "held-out lines"},
@@ -670,6 +671,8 @@ def test_the_console_says_why_an_effect_was_taken_out_and_what_was_kept_together
     assert told == [f"   step 2, cosine misalignment of line x_lin taken out: {why} (2)"]
     # two set-up errors kept in one refit say so
     assert [r.split()[0] for r in table if r.endswith("yes, together")] == ["3"]
+    # a kept effect placed again is no second effect
+    assert [r.split()[0] for r in table if r.endswith("yes, estimated again")] == ["4"]
     # a step that kept what did not predict best there, the loop having run on both ways, says so
     both = "the loop ran on from this step both ways: with a surface kept it ended at 0.09"
     result["loop"][0]["reason"] = f"cross-validated RMS 0.22 → 0.17; {both}"
