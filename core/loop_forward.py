@@ -39,7 +39,7 @@ from .loop_records import Finding, LoopOptions, Step
 from .loop_refine import _re_estimate, _refine, _searched_value, _without
 from .loop_search import _TauGrid, _time_constant_range, diagnose
 from .loop_state import _Fork, _State
-from .loop_tester import _and, _Tester
+from .loop_tester import _and, _noise_variance, _Tester
 from .machine import Machine
 from .progress import CancelToken, ProgressCallback, check, report
 
@@ -443,11 +443,12 @@ def _re_placed(
         candidate = trial.finding.effect
         # the kept effects as kept, not as the trial's refit may have placed a drift again
         effects = _with(kept, candidate, machine)
+        sigma2 = _noise_variance(trial.refit)
         for effect in effects:
             if effect is candidate or not effect.searched:
                 continue
             without = _without(effect, effects, fit, current.model, None)
-            better = _re_estimate(effect, without, machine, options.alpha, _Tester(trial.refit))
+            better = _re_estimate(effect, without, machine, options.alpha, sigma2)
             if better is None:
                 continue
             trial_effects = [better if e is effect else e for e in effects]

@@ -14,7 +14,7 @@ from .errors import ErrorModel
 from .identify import CrossValidation, Identification
 from .loop_compare import _compared, _Fitter, _later_step
 from .loop_records import Step
-from .loop_tester import _Tester
+from .loop_tester import _noise_variance, _Tester
 from .machine import Machine
 
 
@@ -43,7 +43,9 @@ def _refine(
         ):
             continue
         without = _without(effect, kept, fit, current.model, base)
-        better = _re_estimate(effect, without, current.model.machine, alpha, _Tester(current))
+        better = _re_estimate(
+            effect, without, current.model.machine, alpha, _noise_variance(current)
+        )
         if better is None:
             continue
         trial_kept = [better if e is effect else e for e in kept]
@@ -86,19 +88,19 @@ def _searched_value(effect: Effect) -> str:
 
 
 def _re_estimate(
-    effect: Effect, tester: _Tester, machine: Machine, alpha: float, whole: _Tester
+    effect: Effect, tester: _Tester, machine: Machine, alpha: float, sigma2: float
 ) -> Effect | None:
     """The effect with its searched quantity placed where it removes most of what the model
     without it leaves, within one resolution step of its present value; None when that is no
     better than the present value beyond the noise: the χ² it removes must grow past the
     ``alpha`` level of one degree of freedom, counted in the σ² of the fit with every effect in
-    (``whole``). ``tester``'s σ² holds what the effect leaves while it is out of the model and
-    can be a hundred times the noise, so a move worth hundreds of the noise's σ² reads as a
-    fraction of a per cent of the effect's own χ² (blind 56101, plan of the demo: a 4.4 µm
-    cycle of X kept at 23.509 mm beside a drift of X; at 23.533 mm (truth 23.535) the held-out
-    error fell 0.3242 → 0.3175 µm, where a false bump of X at 26 mm had taken up the phase the
-    period lost over the stroke). The caller keeps the move only when the held-out error says
-    it is better.
+    (``sigma2``, :func:`_noise_variance`). ``tester``'s σ² holds what the effect leaves while
+    it is out of the model and can be a hundred times the noise, so a move worth hundreds of
+    the noise's σ² reads as a fraction of a per cent of the effect's own χ² (blind 56101, plan
+    of the demo: a 4.4 µm cycle of X kept at 23.509 mm beside a drift of X; at 23.533 mm (truth
+    23.535) the held-out error fell 0.3242 → 0.3175 µm, where a false bump of X at 26 mm had
+    taken up the phase the period lost over the stroke). The caller keeps the move only when
+    the held-out error says it is better.
 
     A cycle at the screw lead moves off it the same way, its period then a parameter more: it
     is another cycle, near the lead, that the lead's candidate took (blind 38058: a cycle of
@@ -134,7 +136,7 @@ def _re_estimate(
     )
     if not np.isfinite(found.fun):
         return None
-    gained = (-found.fun - now) * tester.sigma2 / whole.sigma2
+    gained = (-found.fun - now) * tester.sigma2 / sigma2
     if gained < stats.chi2.isf(alpha, 1):
         return None
     if isinstance(effect, Cyclic) and not effect.searched:

@@ -34,6 +34,14 @@ USEFUL_SHARE = 1e-4
 USEFUL_SHARE_ONE_COLUMN = 1e-9
 
 
+def _noise_variance(identification: Identification) -> float:
+    """The weighted residual variance of a fit (σ², per degree of freedom): the unit a test's
+    χ² is counted in."""
+    residual = identification.residual
+    dof = max(len(residual) - identification.fitted_rank, 1)
+    return float(np.sum(identification.system.weights * residual**2) / dof)
+
+
 class _Tester:
     """Tests candidate columns against an identification's residual."""
 
@@ -50,9 +58,8 @@ class _Tester:
         self.to_targets = sparse.csr_matrix(
             (np.ones(n), (system.target_of_reading, np.arange(n))), shape=(n_targets, n)
         )
-        dof = max(len(self.r) - identification.fitted_rank, 1)
-        self.dof = dof
-        self.sigma2 = float(np.sum(self.w * self.r**2) / dof)
+        self.dof = max(len(self.r) - identification.fitted_rank, 1)
+        self.sigma2 = _noise_variance(identification)
 
     def drop(self, columns: FloatArray) -> float:
         """The drop of the weighted residual sum of squares (σ²) that adding ``columns`` would
