@@ -146,7 +146,7 @@ def _rows_beside_exact(results: list[dict]) -> list[str]:
     handled = Counter(how for r in results for *_, how in r["one_line"])
     return [
         "exact effect set, or one a kept effect's named rival makes exact (report.json "
-        "effects[].rivals: it fits as well, and the plan cannot tell them apart), every effect "
+        "effects[].rivals: the plan does not rank it below the kept one), every effect "
         f"visible: {rivals} of {len(eligible)} ({100 * rivals / max(len(eligible), 1):.1f} %)",
         "exact effect set, or a one-line effect reported unexplained on its line, every effect "
         f"visible: {right} of {len(eligible)} ({100 * right / max(len(eligible), 1):.1f} %)",

@@ -30,6 +30,7 @@ from .loop_choice import (
     _simplest_best,
     _surface_place,
     _unsettled,
+    _which_axis,
     _which_set_up,
 )
 from .loop_compare import _Fitter, _later_step, _step, _Trial, _with
@@ -468,7 +469,14 @@ def _doubts(state: _State, chosen: _Trial, trials: list[_Trial], options: LoopOp
     key = chosen.finding.effect.key
     doubts = [
         doubt(chosen, trials, options.tie)
-        for doubt in (_alike, _unsettled, _interchangeable, _which_set_up, _set_up_or_machine)
+        for doubt in (
+            _alike,
+            _unsettled,
+            _interchangeable,
+            _which_set_up,
+            _set_up_or_machine,
+            _which_axis,
+        )
     ]
     state.shape_doubt[key] = np.vstack([np.atleast_2d(d.moves) for d in doubts])
     state.surface_doubt.pop(key, None)
@@ -545,26 +553,39 @@ SET_UP_RIVALS = 8
 def _untried_lines(
     findings: list[Finding], tried: list[_Trial], chosen: _Trial, options: LoopOptions
 ) -> list[Finding]:
-    """For a kept set-up error (an Abbe offset, a cosine error): the same kind of error on each
-    other line no refit of the step tried, where the diagnosis gives it nearly the chosen one's
-    gain (at least :data:`RIVAL_GAIN_SHARE` of it), strongest first, up to
+    """For a kept set-up error (an Abbe offset, a cosine error): the other kind of set-up error
+    of its line and the same kind of error on each other line, where no refit of the step tried
+    them and the diagnosis gives them nearly the chosen one's gain (at least
+    :data:`RIVAL_GAIN_SHARE` of it), strongest first, the other lines up to
     :data:`SET_UP_RIVALS`. Lines the 21 errors tie together take one another's set-up error
     alike: each is refitted, only so the report can name it (:func:`_interchangeable`). Blind
     50091, displacement-only plan: a cosine error of any of six lines (the three offset
     diagonals, y_lin_2, z_lin_2, z_lin_3) has the same gain to six figures; the first,
     diag_xy_pp_offset's, was kept beside three surfaces of the same gain, and the injected one,
-    diag_yz_pp_offset's, was never named."""
+    diag_yz_pp_offset's, was never named.
+
+    The kept one's own line comes first: a line whose angular errors change nearly linearly
+    along it reads a lever arm almost as a scale (:func:`_which_set_up` names it). Blind 53140,
+    the plan of the demo: a reflector 58 mm off the beam of diag_xy_pp_b gains 1892 σ² against
+    1900 for a cosine error of that line; the batch held the cosine error and two surfaces, and
+    the offset was never refitted or named."""
     effect = chosen.finding.effect
     if not isinstance(effect, (AbbeOffset, Cosine)):
         return []
     seen = {t.finding.effect.key for t in tried}
-    return [
-        finding
-        for finding in sorted(findings, key=lambda f: -f.gain)
-        if type(finding.effect) is type(effect)
-        and finding.effect.key not in seen
-        and _nearly_as_strong(finding, chosen.finding.gain, options)
-    ][:SET_UP_RIVALS]
+    strongest = sorted(
+        (
+            finding
+            for finding in findings
+            if isinstance(finding.effect, (AbbeOffset, Cosine))
+            and finding.effect.key not in seen
+            and _nearly_as_strong(finding, chosen.finding.gain, options)
+        ),
+        key=lambda f: -f.gain,
+    )
+    own = [f for f in strongest if f.effect.line == effect.line]  # type: ignore[attr-defined]
+    same_kind = [f for f in strongest if type(f.effect) is type(effect) and f not in own]
+    return own + same_kind[:SET_UP_RIVALS]
 
 
 def _set_up_pairs(

@@ -1061,6 +1061,68 @@ def test_a_first_line_s_cosine_error_a_drift_fits_as_well_is_stated_with_that_do
     assert "thermal drift X" in warning
 
 
+def test_a_drift_a_cosine_error_predicts_better_on_its_one_line_alone_is_named_its_rival() -> None:
+    # demo plan, 0.15 µm noise: X expands by 11.4 ppm/K over 0.35 K (τ 3.9 h) and only x_linear
+    # shows it beyond the 21 errors. A cosine error of x_linear is kept; the drift predicts the
+    # held-out data 1.7 % worse over all, more than the 1 % tie, but not line by line: held out
+    # x_linear, it is estimated from lines it barely reaches. The plan cannot rank it below the
+    # cosine error, and the report names it, fitted where the machine has it
+    report, truth = _loop(55102)
+    (drift,) = truth["effects"]
+    assert drift["kind"] == "thermal_drift" and drift["axis"] == "X"
+    (entry,) = [e for e in report["effects"] if e["kind"] == "cosine"]
+    (rival,) = entry["rivals"]["effects"]
+    assert rival["label"] == "thermal drift X (time)"
+    assert entry["rivals"]["kept_cv_rms_all_lines"] < rival["cv_rms_all_lines"]
+    p = drift["parameters"]
+    scale = p["alpha_ppm_per_K"] * p["delta_T_inf_K"]
+    assert rival["parameters"]["scale_ppm"] == pytest.approx(scale, abs=0.2)
+    assert rival["parameters"]["time_constant_s"] / 60 == pytest.approx(p["tau_min"], rel=0.1)
+    (warning,) = [w for w in report["warnings"] if "cannot tell line x_linear's set-up" in w]
+    assert "not significantly worse (paired t below 2)" in warning
+
+
+def test_a_line_s_abbe_offset_as_strong_as_its_kept_cosine_error_is_refitted_and_named() -> None:
+    # demo plan, 0.17 µm noise: diag_xy_pp_b's reflector sits 58 mm below where the plan puts
+    # it. The diagnosis gives that offset 1892 σ² and a cosine error of the line 1900; the step
+    # refitted the cosine error and two surfaces, kept the cosine error and never named the
+    # offset. The offset is refitted after the keep, named as the cosine error's rival and found
+    # where the reflector is
+    report, truth = _loop(53140)
+    (abbe,) = [e for e in truth["effects"] if e["kind"] == "abbe_offset"]
+    (entry,) = [e for e in report["effects"] if e["kind"] == "cosine"]
+    assert entry["parameters"]["line"] == abbe["line"] == "diag_xy_pp_b"
+    (rival,) = [r for r in entry["rivals"]["effects"] if r["kind"] == "abbe_offset"]
+    assert rival["label"] == "Abbe offset of line diag_xy_pp_b"
+    offset = np.array(rival["parameters"]["offset_mm"])
+    assert np.abs(offset - np.array(abbe["parameters"]["offset_mm"])).max() < 6.0
+    assert any(
+        w.startswith(
+            "cosine misalignment of line diag_xy_pp_b was kept, but Abbe offset of line "
+            "diag_xy_pp_b predicts the held-out data as well"
+        )
+        and "optics sit off the beam or its beam is tilted" in w
+        for w in report["warnings"]
+    )
+
+
+def test_a_drift_only_a_line_moving_two_axes_shows_names_the_other_axis_its_rival() -> None:
+    # demo plan, 0.46 µm noise: Y expands by 11.1 ppm/K over 1.9 K (τ 57 min) and only
+    # diag_xy_pp, which moves X and Y alike, shows it beyond the 21 errors. A drift of X is
+    # kept (21 ppm, τ 56 min); the drift of Y predicts the held-out data 2.8 % worse over all
+    # but not line by line. The report must not say the plan chose the axis
+    report, truth = _loop(50193)
+    assert [(e["kind"], e["axis"]) for e in truth["effects"] if e["kind"] == "thermal_drift"] == [
+        ("thermal_drift", "Y")
+    ]
+    (entry,) = [e for e in report["effects"] if e["kind"] == "thermal_drift"]
+    assert entry["axis"] == "X"
+    assert [r["label"] for r in entry["rivals"]["effects"]] == ["thermal drift Y (time)"]
+    (warning,) = [w for w in report["warnings"] if "which axis' scale drifts" in w]
+    assert warning.startswith("thermal drift X (time) was kept, but thermal drift Y (time)")
+    assert "Lines along X and Y alone" in warning
+
+
 @pytest.mark.parametrize("seed", [26162, 27068])
 def test_a_surface_the_plan_sees_alike_at_every_place_is_named_among_the_rivals(seed: int) -> None:
     # direct plan, one surface seen on one diagonal: every direction and pair of axes fits it
