@@ -126,7 +126,7 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, CrossAxis):
         return _Doubt(None, delta)
-    score, place = chosen.score, _surface_place(effect)
+    place = _surface_place(effect)
     rivals = _as_well(
         chosen,
         trials,
@@ -147,11 +147,9 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
         else "Lines along the pair's axes at other offsets would tell them apart"
     )
     text = (
-        f"{effect.label} was kept, but {_and(named)} "
-        f"predict{'s' if len(rivals) == 1 else ''} the held-out data as well (cross-validated "
-        f"RMS {score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals])}): this plan "
-        "cannot tell which direction and pair of axes the surface belongs to; away from the "
-        f"lines measured they differ{_moves_said(trial, beyond)}. {advice}"
+        f"{_kept_but(chosen, rivals, tie)}: this plan cannot tell which direction and pair of "
+        "axes the surface belongs to; away from the lines measured they differ"
+        f"{_moves_said(trial, beyond)}. {advice}"
     )
     return _Doubt(text, deltas, tuple(rivals), separation=separation)
 
@@ -529,15 +527,10 @@ def _set_up_or_machine(chosen: _Trial, trials: list[_Trial], tie: float) -> _Dou
     if not rivals:
         return _Doubt(None, delta)
     trial, beyond, deltas = _rival_moves(chosen, rivals)
-    named = [t.finding.effect.label for t in rivals]
-    said = _moves_said(trial, beyond, AGREE)
     text = (
-        f"{effect.label} was kept, but {_and(named)} "
-        f"predict{'s' if len(rivals) == 1 else ''} the held-out data "
-        f"{_as_well_said(chosen, rivals, tie)} (cross-validated "
-        f"RMS {chosen.score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals])}): this plan "
-        f"cannot tell line {effect.line_name}'s set-up from an error of the machine that shows "
-        f"mostly there{said}. Check the line's set-up and measure it again"
+        f"{_kept_but(chosen, rivals, tie)}: this plan cannot tell line {effect.line_name}'s "
+        "set-up from an error of the machine that shows mostly there"
+        f"{_moves_said(trial, beyond, AGREE)}. Check the line's set-up and measure it again"
     )
     return _Doubt(text, deltas, tuple(rivals))
 
@@ -567,25 +560,30 @@ def _which_axis(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     if not rivals:
         return _Doubt(None, delta)
     trial, beyond, deltas = _rival_moves(chosen, rivals)
-    named = [t.finding.effect.label for t in rivals]
     axes = sorted({str(effect.axis), *(str(t.finding.effect.axis) for t in rivals)})
     text = (
-        f"{effect.label} was kept, but {_and(named)} "
-        f"predict{'s' if len(rivals) == 1 else ''} the held-out data "
-        f"{_as_well_said(chosen, rivals, tie)} (cross-validated RMS {chosen.score:.4g} kept, "
-        f"{_and([f'{t.score:.4g}' for t in rivals])}): this plan cannot tell which axis' scale "
-        f"drifts{_moves_said(trial, beyond, AGREE)}. Lines along {_and(axes)} alone, measured "
-        "while the drift changes, would tell them apart"
+        f"{_kept_but(chosen, rivals, tie)}: this plan cannot tell which axis' scale drifts"
+        f"{_moves_said(trial, beyond, AGREE)}. Lines along {_and(axes)} alone, measured while "
+        "the drift changes, would tell them apart"
     )
     return _Doubt(text, deltas, tuple(rivals))
 
 
-def _as_well_said(chosen: _Trial, rivals: list[_Trial], tie: float) -> str:
-    """How ``rivals``, none ranked below ``chosen`` (:func:`_not_ranked`), predict the held-out
-    data: "as well", unless one is worse over all by more than ``tie``."""
-    if all(t.score <= chosen.score * (1.0 + tie) for t in rivals):
-        return "as well"
-    return "as well or, line by line held out, not significantly worse (paired t below 2)"
+def _kept_but(chosen: _Trial, rivals: list[_Trial], tie: float) -> str:
+    """A doubt's warning up to what it leaves open: the kept effect, its rivals, none ranked below
+    it (:func:`_not_ranked`), and their cross-validated errors beside its. They predict the
+    held-out data "as well", unless one is worse over all by more than ``tie``."""
+    as_well = (
+        "as well"
+        if all(t.score <= chosen.score * (1.0 + tie) for t in rivals)
+        else "as well or, line by line held out, not significantly worse (paired t below 2)"
+    )
+    return (
+        f"{chosen.finding.effect.label} was kept, but "
+        f"{_and([t.finding.effect.label for t in rivals])} "
+        f"predict{'s' if len(rivals) == 1 else ''} the held-out data {as_well} (cross-validated "
+        f"RMS {chosen.score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals])})"
+    )
 
 
 def _moved_text(beyond: list[tuple[float, str, float]]) -> str:
