@@ -155,11 +155,16 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
 
 
 def _as_well(
-    chosen: _Trial, trials: list[_Trial], tie: float, admits: Callable[[Effect], bool]
+    chosen: _Trial,
+    trials: list[_Trial],
+    tie: float,
+    admits: Callable[[Effect], bool],
+    by_lines: bool = False,
 ) -> list[_Trial]:
     """The trials other than ``chosen`` whose effect ``admits`` accepts, that pass or are refused
     only for showing on one line, and predict the held-out data as well (within ``tie``), best
-    first."""
+    first; with ``by_lines``, every one the plan does not rank below ``chosen``
+    (:func:`_not_ranked`: also worse over all, but not unit by unit)."""
     return sorted(
         (
             trial
@@ -167,25 +172,11 @@ def _as_well(
             if trial is not chosen
             and admits(trial.finding.effect)
             and (trial.ok or trial.uncorroborated)
-            and trial.score <= chosen.score * (1.0 + tie)
-        ),
-        key=lambda trial: trial.score,
-    )
-
-
-def _unranked(
-    chosen: _Trial, trials: list[_Trial], tie: float, admits: Callable[[Effect], bool]
-) -> list[_Trial]:
-    """As :func:`_as_well`, the trials the plan does not rank below ``chosen``
-    (:func:`_not_ranked`): within ``tie``, or worse over all but not unit by unit."""
-    return sorted(
-        (
-            trial
-            for trial in trials
-            if trial is not chosen
-            and admits(trial.finding.effect)
-            and (trial.ok or trial.uncorroborated)
-            and _not_ranked(trial, chosen, tie)
+            and (
+                _not_ranked(trial, chosen, tie)
+                if by_lines
+                else trial.score <= chosen.score * (1.0 + tie)
+            )
         ),
         key=lambda trial: trial.score,
     )
@@ -523,7 +514,7 @@ def _set_up_or_machine(chosen: _Trial, trials: list[_Trial], tie: float) -> _Dou
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, (AbbeOffset, Cosine)):
         return _Doubt(None, delta)
-    rivals = _unranked(chosen, trials, tie, lambda other: other.line_index is None)
+    rivals = _as_well(chosen, trials, tie, lambda other: other.line_index is None, by_lines=True)
     if not rivals:
         return _Doubt(None, delta)
     trial, beyond, deltas = _rival_moves(chosen, rivals)
@@ -551,11 +542,12 @@ def _which_axis(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, ThermalDrift):
         return _Doubt(None, delta)
-    rivals = _unranked(
+    rivals = _as_well(
         chosen,
         trials,
         tie,
         lambda other: isinstance(other, ThermalDrift) and other.axis != effect.axis,
+        by_lines=True,
     )
     if not rivals:
         return _Doubt(None, delta)
