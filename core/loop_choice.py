@@ -172,11 +172,7 @@ def _as_well(
             if trial is not chosen
             and admits(trial.finding.effect)
             and (trial.ok or trial.uncorroborated)
-            and (
-                _not_ranked(trial, chosen, tie)
-                if by_lines
-                else trial.score <= chosen.score * (1.0 + tie)
-            )
+            and (_not_ranked(trial, chosen, tie) if by_lines else trial.ties(chosen, tie))
         ),
         key=lambda trial: trial.score,
     )
@@ -281,7 +277,7 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     # a rival better than the kept fit is a richer variant refused by the margin
     if trial.score < chosen.score:
         compared = "better, by less than the margin a richer variant must earn, than"
-    elif trial.score <= chosen.score * (1.0 + tie):
+    elif trial.ties(chosen, tie):
         compared = "as well as"
     else:
         compared = "worse over all, but not unit by unit held out (paired t below 2), than"
@@ -353,7 +349,7 @@ def _worse_on_lines(trial: _Trial, chosen: _Trial) -> bool:
 def _not_ranked(trial: _Trial, chosen: _Trial, tie: float) -> bool:
     """Whether the plan does not rank ``trial`` below ``chosen``: it predicts the held-out data
     as well (within ``tie``), or worse over all but not unit by unit (:func:`_worse_on_lines`)."""
-    return trial.score <= chosen.score * (1.0 + tie) or not _worse_on_lines(trial, chosen)
+    return trial.ties(chosen, tie) or not _worse_on_lines(trial, chosen)
 
 
 def _kept_surface(trial: _Trial) -> tuple[CrossAxis, FloatArray]:
@@ -434,10 +430,7 @@ def _interchangeable(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt
         and trial.ok
         and type(trial.finding.effect) is type(effect)
         and trial.finding.effect.line != effect.line  # type: ignore[attr-defined]
-        and (
-            abs(_chi2(trial.refit) - chi2) <= SAME_FIT_SHARE * chi2
-            or trial.score <= chosen.score * (1.0 + tie)
-        )
+        and (abs(_chi2(trial.refit) - chi2) <= SAME_FIT_SHARE * chi2 or trial.ties(chosen, tie))
     ]
     if not rivals:
         return _Doubt(None, delta)
@@ -475,7 +468,7 @@ def _which_set_up(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
         and isinstance(trial.finding.effect, (AbbeOffset, Cosine))
         and type(trial.finding.effect) is not type(effect)
         and trial.finding.effect.line == effect.line  # type: ignore[attr-defined]
-        and trial.score <= chosen.score * (1.0 + tie)
+        and trial.ties(chosen, tie)
     ]
     if not rivals:
         return _Doubt(None, delta)
@@ -567,7 +560,7 @@ def _kept_but(chosen: _Trial, rivals: list[_Trial], tie: float) -> str:
     held-out data "as well", unless one is worse over all by more than ``tie``."""
     as_well = (
         "as well"
-        if all(t.score <= chosen.score * (1.0 + tie) for t in rivals)
+        if all(t.ties(chosen, tie) for t in rivals)
         else "as well or, line by line held out, not significantly worse (paired t below 2)"
     )
     return (

@@ -148,6 +148,11 @@ class _Trial:
     #: (:func:`_gained_through_lines_it_leaves`): those lines
     left: frozenset[str] = frozenset()
 
+    def ties(self, other: _Trial, tie: float) -> bool:
+        """Whether it predicts the held-out data as well as ``other``: its score within ``tie``
+        (a share) above ``other``'s."""
+        return self.score <= other.score * (1.0 + tie)
+
 
 class _Fitter:
     """Refits of one measurement with a set of effects, from the current model."""

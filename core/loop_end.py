@@ -143,7 +143,7 @@ def _leaner_place(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[_Tr
         if t.ok
         and isinstance(t.finding.effect, CrossAxis)
         and t is not chosen
-        and t.score <= chosen.score * (1.0 + tie)
+        and t.ties(chosen, tie)
     ]
     own = min(
         [_complexity(chosen)]

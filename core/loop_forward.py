@@ -255,7 +255,7 @@ def _tied_variant(chosen: _Trial, tried: list[_Trial], tie: float) -> _Trial | N
         and isinstance(t.finding.effect, CrossAxis)
         and _surface_place(t.finding.effect) == _surface_place(effect)
         and _complexity(t) <= _complexity(chosen)
-        and t.score <= chosen.score * (1.0 + tie)
+        and t.ties(chosen, tie)
     ]
     return min(variants, key=lambda t: t.score) if variants else None
 
@@ -488,9 +488,7 @@ def _doubts(state: _State, chosen: _Trial, trials: list[_Trial], options: LoopOp
     state.tied[key] = [
         t.finding
         for t in trials
-        if t is not chosen
-        and (t.ok or t.uncorroborated)
-        and t.score <= chosen.score * (1.0 + options.tie)
+        if t is not chosen and (t.ok or t.uncorroborated) and t.ties(chosen, options.tie)
     ]
     state.rivals.pop(key, None)
     if named:
@@ -584,7 +582,7 @@ def _untried_lines(
         key=lambda f: -f.gain,
     )
     own = [f for f in strongest if f.effect.line == effect.line]  # type: ignore[attr-defined]
-    same_kind = [f for f in strongest if type(f.effect) is type(effect) and f not in own]
+    same_kind = [f for f in strongest if type(f.effect) is type(effect)]
     return own + same_kind[:SET_UP_RIVALS]
 
 
