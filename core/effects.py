@@ -559,7 +559,16 @@ class LocalDefect(Effect):
 
     @property
     def label(self) -> str:
-        return f"local defect {self.axis_name} in {self.direction} at {self.center_mm:.0f} mm"
+        place = f"local defect {self.axis_name} in {self.direction} at {self.center_mm:.0f} mm"
+        if self.profile == "gaussian":
+            return f"{place} (Gaussian, 1 σ {self.width_mm:.3g} mm)"
+        return place
+
+    @property
+    def reach_mm(self) -> float:
+        """How far from its centre the bump reaches (mm): a free profile's half-span; three
+        1 σ widths of a Gaussian, where it has fallen to 1 % of its height."""
+        return self.width_mm if self.profile == "free" else 3.0 * self.width_mm
 
     @property
     def searched(self) -> int:

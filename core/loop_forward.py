@@ -10,7 +10,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .effects import AbbeOffset, Cosine, CrossAxis, Cyclic, Effect, ThermalDrift
+from .effects import AbbeOffset, Cosine, CrossAxis, Cyclic, Effect, LocalDefect, ThermalDrift
 from .errors import ErrorModel
 from .identify import CrossValidation, Identification
 from .loop_choice import (
@@ -38,7 +38,7 @@ from .loop_courses import _on_common_rows
 from .loop_judge import PLACED_AGAIN, SPOILED_BY_THE_REST, TOGETHER, _judge
 from .loop_records import Finding, LoopOptions, Step
 from .loop_refine import _re_estimate, _refine, _searched_value, _without
-from .loop_search import _TauGrid, _time_constant_range, diagnose
+from .loop_search import _TauGrid, _time_constant_range, diagnose, narrow_bump
 from .loop_state import _Fork, _State
 from .loop_tester import _and, _noise_variance, _Tester
 from .machine import Machine
@@ -104,6 +104,7 @@ def _forward(
             trials = [_tried(f, fit, kept, current, cv, options) for f in batch]
             leaner = _leaner_surfaces(trials, proposals, options.candidates_per_step)
             proposals = [f for f in proposals if f not in leaner]
+            leaner += _narrow_instead(trials, current, kept, len(findings), options)
             trials += [_tried(f, fit, kept, current, cv, options) for f in leaner]
             tried += len(trials)
             tried_this_step = _on_common_rows(tried_this_step + trials)
@@ -363,6 +364,35 @@ def _drifts_placed_beside(
     return out
 
 
+def _refused_implausible(trials: list[_Trial]) -> _Trial | None:
+    """The batch's best-predicting trial when it was refused as implausible."""
+    best = min(trials, key=lambda t: t.score, default=None)
+    return best if best is not None and best.verdict == "implausible" else None
+
+
+def _narrow_instead(
+    trials: list[_Trial],
+    current: Identification,
+    kept: list[Effect],
+    tested: int,
+    options: LoopOptions,
+) -> list[Finding]:
+    """When the batch's best-predicting trial is a bump of free profile refused as implausible:
+    the Gaussian bump narrower than the targets' spacing within its span
+    (:func:`~.loop_search.narrow_bump`), as a list of at most one, where it passes the
+    false-alarm level. A bump narrower than the spacing fixes no profile, and the free one,
+    spanning three spacings each side, is a hump its error function cancels; one height at
+    one place and width is what the readings fix (blind 57085)."""
+    best = _refused_implausible(trials)
+    free = None if best is None else best.finding.effect
+    if not isinstance(free, LocalDefect) or free.profile != "free":
+        return []
+    found = narrow_bump(current, free, [e.key for e in kept], tested)
+    if found is None or found.log10_false_alarm >= np.log10(options.alpha):
+        return []
+    return [found]
+
+
 def _leaner_surfaces(trials: list[_Trial], proposals: list[Finding], count: int) -> list[Finding]:
     """When the batch's best-predicting trial is a surface refused as implausible: the
     proposals of the same direction and pair of axes at a lower order (or without lever-arm
@@ -373,10 +403,8 @@ def _leaner_surfaces(trials: list[_Trial], proposals: list[Finding], count: int)
     the same structure without the swing (indep. 4300180, sparse plan: EX over X×Z at order 8
     predicted the held-out blocks best, 52.6 % better, with a 150 µm peak; EX over Y×Z was kept
     at 47.9 % and the injected place never refitted)."""
-    best = min(trials, key=lambda t: t.score, default=None)
-    if best is None or best.verdict != "implausible":
-        return []
-    effect = best.finding.effect
+    best = _refused_implausible(trials)
+    effect = None if best is None else best.finding.effect
     if not isinstance(effect, CrossAxis):
         return []
     place = _surface_place(effect)
