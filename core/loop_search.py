@@ -658,17 +658,17 @@ def _refine_local(
     bump: Callable[[float, float], LocalDefect],
     center: float,
     width: float,
-    stroke: tuple[float, float],
+    span: tuple[float, float],
     widths: tuple[float, float],
     step: float,
 ) -> tuple[float, float]:
-    """Place and width of the bump (``bump(center, width)``, its width within ``widths``) that
-    removes the most of what the model leaves (Nelder–Mead on the projected gain, from the
-    scan's best, its first move along the axis ``step`` mm)."""
+    """Place and width of the bump (``bump(center, width)``, its centre within ``span`` and its
+    width within ``widths``) that removes the most of what the model leaves (Nelder–Mead on the
+    projected gain, from the scan's best, its first move along the axis ``step`` mm)."""
     from scipy.optimize import minimize
 
     tester = diagnosis.tester
-    low, high = stroke
+    low, high = span
     shortest, longest = widths
 
     def loss(x: FloatArray) -> float:
