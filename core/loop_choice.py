@@ -16,7 +16,7 @@ from .identify import Identification
 from .identify_system import SHARE_NAMED
 from .loop_compare import _held_out_group, _Trial
 from .loop_judge import SET_UP_TIE
-from .loop_records import EffectKey, Finding, FloatArray, LoopOptions
+from .loop_records import EffectKey, Finding, FloatArray, LoopOptions, effect_entry
 from .loop_state import _State
 from .loop_tester import _and, _exchange
 from .separating import Separation, separating_lines
@@ -182,12 +182,8 @@ def _rival_report(trial: _Trial) -> dict[str, object]:
     """A rival of a kept effect as report.json lists it: its kind, axis, label and parameters
     as fitted in its trial, and its cross-validated RMS over the readings the step's candidates
     were ranked on (every line, angular readings on the displacement scale)."""
-    effect = trial.finding.effect
     return {
-        "kind": effect.kind,
-        "axis": effect.axis,
-        "label": effect.label,
-        "parameters": trial.parameters,
+        **effect_entry(trial.finding.effect, trial.parameters),
         "cv_rms_all_lines": trial.score,
     }
 

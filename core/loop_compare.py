@@ -147,6 +147,10 @@ class _Trial:
     #: for a surface refused as the disagreement of lines it leaves systematic
     #: (:func:`_gained_through_lines_it_leaves`): those lines
     left: frozenset[str] = frozenset()
+    #: for a machine effect refused as one line alone shows it: that line
+    alone_on: str = ""
+    #: the share by which it bettered the held-out error of the model it was tried against
+    gain: float = float("nan")
 
     def ties(self, other: _Trial, tie: float) -> bool:
         """Whether it predicts the held-out data as well as ``other``: its score within ``tie``
@@ -326,6 +330,8 @@ def _step(
         group_rms(trial.refit),
         stage,
         verdict,
+        trial.alone_on,
+        trial.gain,
     )
 
 

@@ -53,7 +53,11 @@ def _judge(
         reason += f" (over the held-out {held} less {wild} wild extrapolations)"
 
     def refused(
-        why: str, verdict: str, uncorroborated: bool = False, left: frozenset[str] = frozenset()
+        why: str,
+        verdict: str,
+        uncorroborated: bool = False,
+        left: frozenset[str] = frozenset(),
+        alone_on: str = "",
     ) -> _Trial:
         return _Trial(
             finding,
@@ -67,6 +71,8 @@ def _judge(
             verdict,
             rows,
             left,
+            alone_on,
+            improvement,
         )
 
     why = _implausible_fitted(refit, index, options, fit, current)
@@ -83,7 +89,8 @@ def _judge(
         effect, tester, cv, cv_new, rows, energy
     )
     if lonely is not None:
-        return refused(lonely, "one line only", uncorroborated=True)
+        why, line = lonely
+        return refused(why, "one line only", uncorroborated=True, alone_on=line)
     if effect.kind in NEEDS_TWO_LINES:
         per_line = _held_out_gain(tester, cv, cv_new, rows)
         unsteady = _gained_on_wandering_lines(
@@ -417,8 +424,10 @@ WANDERING_SHARE = 0.8
 ONE_SHAPE = ("reversal", "cyclic", "thermal_drift", "local", "cross_axis")
 
 
-def _uncorroborated(effect: Effect, energy: FloatArray, readings: Readings) -> str | None:
-    """Why a machine effect seen by one line only is not kept, or None.
+def _uncorroborated(
+    effect: Effect, energy: FloatArray, readings: Readings
+) -> tuple[str, str] | None:
+    """Why a machine effect seen by one line only is not kept, and that line; or None.
 
     A guideway defect, a finer shape of an error function, a surface over two axes or a drift in
     time that only one line shows cannot be told from something of that line's set-up (a
@@ -449,7 +458,8 @@ def _uncorroborated(effect: Effect, energy: FloatArray, readings: Readings) -> s
     where = readings.lines[int(np.argmax(energy))].name
     return (
         f"only line {where} shows it beyond what the 21 errors absorb: one line cannot tell a "
-        "machine effect from an artefact of its own set-up; refused"
+        "machine effect from an artefact of its own set-up; refused",
+        where,
     )
 
 
@@ -566,9 +576,9 @@ def _confirmed_by_one_line(
     cv_new: CrossValidation,
     rows: NDArray[np.bool_],
     energy: FloatArray,
-) -> str | None:
+) -> tuple[str, str] | None:
     """Why a finer function of an error is not kept when one line alone predicts its held-out
-    readings better with it, or None.
+    readings better with it, and that line; or None.
 
     A finer basis has a free slice on every line that reads its error: fitted to one line's
     artefact, the chain carries that slice to the other lines, where it shows (so two lines
@@ -592,11 +602,12 @@ def _confirmed_by_one_line(
     if others >= SHOWN_SIGMA2:
         return None
     worse = ", that is they are predicted worse" if others < 0 else ""
+    where = readings.lines[best].name
     return (
-        f"only line {readings.lines[best].name} is predicted better with it where held out: "
-        f"the other lines that show it together gain {others:.3g} σ² (at least "
-        f"{SHOWN_SIGMA2:g} needed{worse}), so one line's artefact cannot be told from a finer "
-        "function of the machine; refused"
+        f"only line {where} is predicted better with it where held out: the other lines that "
+        f"show it together gain {others:.3g} σ² (at least {SHOWN_SIGMA2:g} needed{worse}), so "
+        "one line's artefact cannot be told from a finer function of the machine; refused",
+        where,
     )
 
 

@@ -22,6 +22,17 @@ IntArray = NDArray[np.int64]
 EffectKey = tuple[str, str | None, str]
 
 
+def effect_entry(effect: Effect, parameters: dict[str, object]) -> dict[str, object]:
+    """An effect as report.json names it wherever it lists one (a kept effect, a rival, a step's
+    candidate): its kind, axis, label and ``parameters``."""
+    return {
+        "kind": effect.kind,
+        "axis": effect.axis,
+        "label": effect.label,
+        "parameters": parameters,
+    }
+
+
 @dataclass(frozen=True)
 class LoopOptions:
     """Thresholds of the loop.
@@ -130,6 +141,11 @@ class Step:
     stage: str = "forward"
     #: the decision in a few words (:data:`VERDICTS`); ``reason`` gives it in full
     verdict: str = "kept"
+    #: for a machine effect refused as one line alone shows it: that line
+    alone_on: str = ""
+    #: the share by which the candidate bettered the held-out error it was judged on (every
+    #: line, angular readings on the displacement scale; NaN where the step does not state it)
+    held_out_gain: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -181,6 +197,11 @@ class Unexplained:
     description: str
     magnitude_um: float
     correlates_with: dict[str, float] = field(default_factory=dict)
+    #: the line whose systematic residual along its targets it is ("" for anything else)
+    line: str = ""
+    #: machine effects the loop refused only because this line alone shows them, each by the
+    #: last step that tried it (:func:`~volucal.core.loop_unexplained.with_one_line_effects`)
+    one_line_effects: tuple[Step, ...] = ()
 
     @property
     def strongest(self) -> str | None:

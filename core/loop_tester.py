@@ -325,6 +325,6 @@ def _fit_metric(identification: Identification, rows: NDArray[np.bool_]) -> floa
     return _rms(residual, identification.readings, rows & np.isfinite(residual))
 
 
-def _and(names: Sequence[str]) -> str:
-    """Names joined in words: A; A and B; A, B and C."""
-    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
+def _and(names: Sequence[str], word: str = "and") -> str:
+    """Names joined in words: A; A and B; A, B and C (with ``word`` "or": A, B or C)."""
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} {word} {names[-1]}"

@@ -98,15 +98,26 @@ from .loop_records import (
     SpacingChoice,
     Step,
     Unexplained,
+    effect_entry,
     group_rms,
     line_group,
 )
 from .loop_search import _periods_text, diagnose
 from .loop_state import _State
-from .loop_unexplained import unexplained
+from .loop_unexplained import unexplained, with_one_line_effects
 from .measurement import Measurement
 from .progress import CancelToken, ProgressCallback, report
 from .readings import Readings, flatten
+
+
+def _one_line_effect(step: Step) -> dict[str, object]:
+    """A machine effect refused only because one line alone shows it, as report.json's
+    ``unexplained[].one_line_effects`` gives it."""
+    return {
+        **effect_entry(step.finding.effect, step.parameters),
+        "step": step.step,
+        "held_out_gain_percent": 100.0 * step.held_out_gain,
+    }
 
 
 @dataclass(frozen=True, eq=False)
@@ -154,12 +165,7 @@ class LoopResult:
             strict=True,
         ):
             assert isinstance(effect, Effect)
-            entry: dict[str, object] = {
-                "kind": effect.kind,
-                "axis": effect.axis,
-                "label": effect.label,
-                "parameters": {**effect.parameters(values, cov), **searched},
-            }
+            entry = effect_entry(effect, {**effect.parameters(values, cov), **searched})
             if part.count:
                 entry["shared_with_errors"] = {
                     "terms": list(part.terms),
@@ -202,10 +208,7 @@ class LoopResult:
                     "step": s.step,
                     "stage": s.stage,
                     "effect": {
-                        "kind": effect.kind,
-                        "axis": effect.axis,
-                        "label": effect.label,
-                        "parameters": s.parameters,
+                        **effect_entry(effect, s.parameters),
                         "evidence": s.finding.evidence(),
                     },
                     "kept": s.kept,
@@ -235,6 +238,11 @@ class LoopResult:
                     "magnitude_um": u.magnitude_um,
                     "correlates_with": dict(u.correlates_with),
                     "strongest": u.strongest,
+                    **(
+                        {"one_line_effects": [_one_line_effect(s) for s in u.one_line_effects]}
+                        if u.one_line_effects
+                        else {}
+                    ),
                 }
                 for u in self.unexplained
             ],
@@ -382,7 +390,9 @@ def _close_loop(
     shared = tuple(_shared(current, index) for index in range(len(current.effects)))
     warnings += _shared_warnings(current, shared)
     report(progress, 0.95, "looking for what is still unexplained")
-    leftover = unexplained(current, cv, options.alpha)
+    leftover = with_one_line_effects(
+        unexplained(current, cv, options.alpha), steps, {e.key for e in kept}, options.margin
+    )
     doubts = [state.shape_doubt[e.key] for e in kept if e.key in state.shape_doubt]
     doubts += time_doubts
     if spacing.spacing_mm != spacing.reference_mm:

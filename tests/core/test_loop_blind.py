@@ -1144,6 +1144,32 @@ def test_a_surface_the_plan_sees_alike_at_every_place_is_named_among_the_rivals(
     assert any("cannot tell which direction and pair" in w for w in report["warnings"])
 
 
+def test_a_bump_one_line_alone_shows_is_reported_with_the_effects_that_would_explain_it() -> None:
+    # twelve-line plan: a 1.0 µm bump of EYX at X 319 mm that only diag_xy_pp shows. A local
+    # defect of Y along X or of X along Y fits it alike, 14 % better held out, and is refused as
+    # one line cannot tell it from its own set-up; the report said "no effect of the catalogue
+    # explains it" of the line. It names both now, and what would tell them apart
+    report, truth = _loop(53046)
+    (bump,) = truth["effects"]
+    assert report["effects"] == []
+    (item,) = report["unexplained"]
+    assert item["where"].startswith("line diag_xy_pp at ")
+    named = item["one_line_effects"]
+    assert {(e["kind"], e["axis"], e["parameters"]["direction"]) for e in named} == {
+        ("local", "X", "Y"),
+        ("local", "Y", "X"),
+    }
+    for effect in named:
+        assert effect["held_out_gain_percent"] >= 3.0
+        assert effect["parameters"]["peak_mm"] == pytest.approx(
+            bump["parameters"]["centre_mm"], abs=15.0
+        )
+        assert effect["label"] in item["description"]
+    assert "no effect of the catalogue explains it" not in item["description"]
+    assert "only this line shows it" in item["description"]
+    assert "a second line that reads the same error there would tell" in item["description"]
+
+
 def test_a_surface_that_explains_its_one_line_but_a_remainder_stays_is_kept() -> None:
     # direct plan: a 4.6 µm surface EZ over Y×Z that only diag_yz_pp shows, beside a triangular
     # bump of EYZ whose tip the free profile rounds (a 0.17 µm wiggle stays on diag_yz_pp). The
