@@ -149,8 +149,11 @@ class _Trial:
     left: frozenset[str] = frozenset()
     #: for a machine effect refused as one line alone shows it: that line
     alone_on: str = ""
-    #: the share by which it bettered the held-out error of the model it was tried against
-    gain: float = float("nan")
+    #: the share by which it bettered the held-out error of the model it was tried against, as
+    #: the margin judges it (:func:`~volucal.core.loop_judge._margin_gain`), and where: "" over
+    #: the plan, else the readings it acts on
+    improvement: float = float("nan")
+    improvement_over: str = ""
 
     def ties(self, other: _Trial, tie: float) -> bool:
         """Whether it predicts the held-out data as well as ``other``: its score within ``tie``
@@ -331,7 +334,8 @@ def _step(
         stage,
         verdict,
         trial.alone_on,
-        trial.gain,
+        trial.improvement,
+        trial.improvement_over,
     )
 
 

@@ -15,7 +15,7 @@ from .effects import AbbeOffset, Effect, LocalDefect, Reversal, ThermalDrift
 from .identify import BLOCK_MM, CrossValidation, Identification
 from .loop_compare import _Fitter, _rows_compared, _Trial, _with
 from .loop_courses import _off_course
-from .loop_records import Finding, FloatArray, IntArray, LoopOptions
+from .loop_records import ONE_LINE_CANNOT_TELL, Finding, FloatArray, IntArray, LoopOptions
 from .loop_tester import _and, _fit_metric, _log10_text, _rms, _Tester
 from .loop_unexplained import _systematic_lines, _Wander, _wandering, _widespread
 from .machine import AXIS_INDEX
@@ -47,6 +47,9 @@ def _judge(
     before = _rms(cv.residual, current.readings, rows)
     after = _rms(cv_new.residual, current.readings, rows)
     improvement = _gain(before, after)
+    judged, over, where_text = _margin_gain(
+        effect, current, rows, cv, cv_new, improvement, options.margin
+    )
     reason = f"cross-validated RMS {before:.4g} → {after:.4g} ({100 * improvement:.1f} % better)"
     if wild:
         held = "blocks" if cv.method.startswith("held-out blocks") else "lines"
@@ -72,7 +75,8 @@ def _judge(
             rows,
             left,
             alone_on,
-            improvement,
+            judged,
+            over,
         )
 
     why = _implausible_fitted(refit, index, options, fit, current)
@@ -85,12 +89,13 @@ def _judge(
         wander = _wandering(current, options.alpha).get(effect.line_index)
         if wander is not None:
             return refused(_set_up_of_wandering_line(wander), "not repeatable")
-    lonely = _uncorroborated(effect, energy, refit.readings) or _confirmed_by_one_line(
-        effect, tester, cv, cv_new, rows, energy
-    )
+    lonely = _uncorroborated(effect, energy, refit.readings)
     if lonely is not None:
         why, line = lonely
         return refused(why, "one line only", uncorroborated=True, alone_on=line)
+    finer = _confirmed_by_one_line(effect, tester, cv, cv_new, rows, energy)
+    if finer is not None:
+        return refused(finer, "one line only", uncorroborated=True)
     if effect.kind in NEEDS_TWO_LINES:
         per_line = _held_out_gain(tester, cv, cv_new, rows)
         unsteady = _gained_on_wandering_lines(
@@ -103,15 +108,9 @@ def _judge(
             if contradicted is not None:
                 return refused(contradicted, "not confirmed")
     if improvement < options.margin:
-        local = _gain_where_it_acts(effect, current, rows, cv, cv_new) if improvement > 0 else None
-        gained = 0.0
-        if local is not None:
-            gained, where, local_before, local_after = local
-            reason += (
-                f"; over the {where}: {local_before:.4g} → {local_after:.4g} "
-                f"({100 * gained:.1f} % better)"
-            )
-        if gained < options.margin:
+        if where_text:
+            reason += f"; {where_text}"
+        if judged < options.margin:
             return refused(
                 f"below the {100 * options.margin:.0f} % margin: refused", "below margin"
             )
@@ -158,12 +157,46 @@ def _judge(
         carried = _gained_through_lines_it_leaves(effect, current, refit, per_line, fit)
         if carried is not None:
             return refused(carried[0], "not confirmed", left=carried[1])
-    return _Trial(finding, refit, cv_new, True, reason, parameters, score=after, rows=rows)
+    return _Trial(
+        finding,
+        refit,
+        cv_new,
+        True,
+        reason,
+        parameters,
+        score=after,
+        rows=rows,
+        improvement=judged,
+        improvement_over=over,
+    )
 
 
 def _gain(before: float, after: float) -> float:
     """The relative improvement of an RMS from ``before`` to ``after`` (0 without a before)."""
     return 1.0 - after / before if before > 0 else 0.0
+
+
+def _margin_gain(
+    effect: Effect,
+    current: Identification,
+    rows: NDArray[np.bool_],
+    before: CrossValidation,
+    after: CrossValidation,
+    improvement: float,
+    margin: float,
+) -> tuple[float, str, str]:
+    """The held-out gain an effect is held to the margin by, over which readings, and the words
+    a step's reason gives it in: over the plan (``improvement``, "" and ""), or, where that
+    falls short of ``margin`` but betters the plan's error at all and the effect acts on few of
+    its readings, over those (:func:`_gain_where_it_acts`)."""
+    if improvement >= margin or improvement <= 0:
+        return improvement, "", ""
+    local = _gain_where_it_acts(effect, current, rows, before, after)
+    if local is None:
+        return improvement, "", ""
+    gained, where, first, second = local
+    text = f"over the {where}: {first:.4g} → {second:.4g} ({100 * gained:.1f} % better)"
+    return gained, where, text
 
 
 def _where_it_acts(
@@ -245,7 +278,13 @@ EXPLAINED_SHARE = 0.75
 def _explained(without: Identification, with_it: Identification, index: int) -> float:
     """The share of line ``index``'s in-sample mean square (what ``without`` leaves there) that
     ``with_it`` takes."""
-    line = without.readings.line == index
+    line = (
+        (without.readings.line == index)
+        & np.isfinite(without.residual)
+        & np.isfinite(with_it.residual)
+    )
+    if not line.any():
+        return 0.0
     before = float(np.mean(without.residual[line] ** 2))
     after = float(np.mean(with_it.residual[line] ** 2))
     return 1.0 - after / before if before > 0 else 0.0
@@ -427,7 +466,8 @@ ONE_SHAPE = ("reversal", "cyclic", "thermal_drift", "local", "cross_axis")
 def _uncorroborated(
     effect: Effect, energy: FloatArray, readings: Readings
 ) -> tuple[str, str] | None:
-    """Why a machine effect seen by one line only is not kept, and that line; or None.
+    """Why a machine effect seen by one line only is not kept, and that line ("" where no line
+    shows it); or None.
 
     A guideway defect, a finer shape of an error function, a surface over two axes or a drift in
     time that only one line shows cannot be told from something of that line's set-up (a
@@ -457,9 +497,9 @@ def _uncorroborated(
         return None
     where = readings.lines[int(np.argmax(energy))].name
     return (
-        f"only line {where} shows it beyond what the 21 errors absorb: one line cannot tell a "
-        "machine effect from an artefact of its own set-up; refused",
-        where,
+        f"only line {where} shows it beyond what the 21 errors absorb: {ONE_LINE_CANNOT_TELL}; "
+        "refused",
+        where if showing.size == 1 else "",
     )
 
 
@@ -576,9 +616,9 @@ def _confirmed_by_one_line(
     cv_new: CrossValidation,
     rows: NDArray[np.bool_],
     energy: FloatArray,
-) -> tuple[str, str] | None:
+) -> str | None:
     """Why a finer function of an error is not kept when one line alone predicts its held-out
-    readings better with it, and that line; or None.
+    readings better with it, or None.
 
     A finer basis has a free slice on every line that reads its error: fitted to one line's
     artefact, the chain carries that slice to the other lines, where it shows (so two lines
@@ -602,12 +642,11 @@ def _confirmed_by_one_line(
     if others >= SHOWN_SIGMA2:
         return None
     worse = ", that is they are predicted worse" if others < 0 else ""
-    where = readings.lines[best].name
     return (
-        f"only line {where} is predicted better with it where held out: the other lines that "
-        f"show it together gain {others:.3g} σ² (at least {SHOWN_SIGMA2:g} needed{worse}), so "
-        "one line's artefact cannot be told from a finer function of the machine; refused",
-        where,
+        f"only line {readings.lines[best].name} is predicted better with it where held out: "
+        f"the other lines that show it together gain {others:.3g} σ² (at least "
+        f"{SHOWN_SIGMA2:g} needed{worse}), so one line's artefact cannot be told from a finer "
+        "function of the machine; refused"
     )
 
 

@@ -22,6 +22,10 @@ IntArray = NDArray[np.int64]
 EffectKey = tuple[str, str | None, str]
 
 
+#: Why a machine effect that one line alone shows is not kept (loop_judge ``_uncorroborated``).
+ONE_LINE_CANNOT_TELL = "one line cannot tell a machine effect from an artefact of its own set-up"
+
+
 def effect_entry(effect: Effect, parameters: dict[str, object]) -> dict[str, object]:
     """An effect as report.json names it wherever it lists one (a kept effect, a rival, a step's
     candidate): its kind, axis, label and ``parameters``."""
@@ -143,9 +147,12 @@ class Step:
     verdict: str = "kept"
     #: for a machine effect refused as one line alone shows it: that line
     alone_on: str = ""
-    #: the share by which the candidate bettered the held-out error it was judged on (every
-    #: line, angular readings on the displacement scale; NaN where the step does not state it)
-    held_out_gain: float = float("nan")
+    #: the share by which the candidate bettered the held-out error, as the margin judges it
+    #: (every line, angular readings on the displacement scale; NaN where the step does not
+    #: state it), and where: "" over the plan, else over the readings it acts on (the words
+    #: of the step's reason)
+    improvement: float = float("nan")
+    improvement_over: str = ""
 
 
 @dataclass(frozen=True)

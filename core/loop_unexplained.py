@@ -13,7 +13,14 @@ from scipy import special
 from .identify import CrossValidation, Identification
 from .loop_compare import _predicted
 from .loop_courses import _centred, _moving_one_axis, _scales_in_time, _unsteady_scales
-from .loop_records import EffectKey, FloatArray, IntArray, Step, Unexplained
+from .loop_records import (
+    ONE_LINE_CANNOT_TELL,
+    EffectKey,
+    FloatArray,
+    IntArray,
+    Step,
+    Unexplained,
+)
 from .loop_tester import _and, _cell_key, _log10_text, _unit
 from .machine import AXES
 from .readings import Readings
@@ -311,14 +318,17 @@ NOTHING_EXPLAINS = "; no effect of the catalogue explains it"
 def with_one_line_effects(
     found: list[Unexplained], steps: list[Step], kept: set[EffectKey], margin: float
 ) -> list[Unexplained]:
-    """``found`` with, on each line's systematic residual, the machine effects the loop refused
-    only because that line alone shows them (rule (b)), having bettered the held-out error by
-    ``margin`` or more: the last forward step that tried each, of those not ``kept``.
+    """``found`` with, on each line's systematic residual, the machine effects fitted to it that
+    the loop refused only because that line alone shows them (rule (b),
+    :func:`~volucal.core.loop_judge._uncorroborated`) after they bettered the held-out error by
+    ``margin`` or more, as the margin judges it: each by the last forward step that tried it, of
+    those not ``kept``, best first.
 
-    The loop does not keep them, and "no effect of the catalogue explains it" would be untrue: a
-    bump on the twelve-line plan's diag_xy_pp is fitted as a local defect of X along Y or of Y
-    along X alike, 14 % better held out (blind 53046). The report names them and says what
-    would tell: a second line that reads the same error there."""
+    "No effect of the catalogue explains it" would be untrue of such a line: blind 53046,
+    twelve-line plan, a 1.0 µm bump of EYX at X 319 mm that only diag_xy_pp shows, fitted as a
+    local defect of X along Y or of Y along X alike, 14.4 % better held out. The report names
+    them, says why neither is kept and what would tell: a second line that reads the same error
+    there."""
     last: dict[EffectKey, Step] = {}
     for step in steps:
         if step.stage == "forward":
@@ -326,24 +336,26 @@ def with_one_line_effects(
     lonely = [
         s
         for key, s in last.items()
-        if key not in kept and s.verdict == "one line only" and s.held_out_gain >= margin
+        if key not in kept
+        and s.verdict == "one line only"
+        and s.alone_on
+        and s.improvement >= margin
     ]
     out = []
     for item in found:
-        named = sorted(
-            (s for s in lonely if item.line and s.alone_on == item.line),
-            key=lambda s: -s.held_out_gain,
-        )
-        if not named or not item.description.endswith(NOTHING_EXPLAINS):
+        named = sorted((s for s in lonely if s.alone_on == item.line), key=lambda s: -s.improvement)
+        if not item.line or not named or not item.description.endswith(NOTHING_EXPLAINS):
             out.append(item)
             continue
         best = named[0]
         labels = _and([s.finding.effect.label for s in named], "or")
+        where = f" over the {best.improvement_over}" if best.improvement_over else ""
+        verb = "was" if len(named) == 1 else "were"
         description = item.description.removesuffix(NOTHING_EXPLAINS) + (
-            f"; {labels} would explain it ({100 * best.held_out_gain:.1f} % better held out, "
-            f"step {best.step}), but only this line shows it beyond what the 21 errors absorb: "
-            "one line cannot tell a machine effect from an artefact of its own set-up, so none "
-            "is kept; a second line that reads the same error there would tell"
+            f"; {labels}, fitted to it, {verb} refused ({100 * best.improvement:.1f} % better "
+            f"held out{where}, step {best.step}): only this line shows it beyond what the 21 "
+            f"errors absorb, and {ONE_LINE_CANNOT_TELL}; a second line that reads the same "
+            "error there would tell"
         )
         out.append(replace(item, description=description, one_line_effects=tuple(named)))
     return out

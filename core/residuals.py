@@ -116,7 +116,8 @@ def _one_line_effect(step: Step) -> dict[str, object]:
     return {
         **effect_entry(step.finding.effect, step.parameters),
         "step": step.step,
-        "held_out_gain_percent": 100.0 * step.held_out_gain,
+        "held_out_gain_percent": 100.0 * step.improvement,
+        **({"held_out_over": step.improvement_over} if step.improvement_over else {}),
     }
 
 

@@ -722,3 +722,59 @@ def test_a_surface_states_its_standard_uncertainty_in_micrometres_over_its_strok
     parameters = surface.parameters(np.array([2.0]), np.array([[sigma**2]]))
     assert parameters["rms_std_um"] == pytest.approx(sigma * p2_mean_square, rel=1e-12)
     assert parameters["rms_um"] == pytest.approx(2.0 * p2_mean_square, rel=1e-12)
+
+
+def test_a_line_s_residual_names_only_the_effects_refused_because_it_alone_shows_them() -> None:
+    # steps built by hand: which refusals the unexplained entry of a line names, and how
+    from volucal.core.effects import AbbeOffset, Cosine
+    from volucal.core.loop_records import Finding, Step, Unexplained
+    from volucal.core.loop_unexplained import NOTHING_EXPLAINS, with_one_line_effects
+
+    def step(effect, number, verdict, alone_on="y_linear", improvement=0.10, stage="forward"):  # type: ignore[no-untyped-def]
+        return Step(
+            step=number,
+            finding=Finding(effect, 1.0, -5.0, 1, 1.0, 1.0, ""),
+            kept=False,
+            reason="",
+            rms_before=0.0,
+            rms_after=0.0,
+            cv_before=0.0,
+            cv_after=0.0,
+            parameters={},
+            per_group_before={},
+            per_group_after={},
+            stage=stage,
+            verdict=verdict,
+            alone_on=alone_on,
+            improvement=improvement,
+        )
+
+    # hand-built effects of distinct keys (their kind does not matter to the rule)
+    a, b, c, d, e, f = (AbbeOffset(i, f"line_{i}") for i in range(6))
+    g = Cosine(6, "line_6")
+    steps = [
+        step(a, 1, "one line only", improvement=0.05),
+        step(a, 3, "one line only", improvement=0.12),  # the last step that tried it counts
+        step(b, 1, "one line only"),
+        step(b, 2, "below margin"),  # tried again and refused for another reason: not named
+        step(c, 2, "one line only", improvement=0.02),  # below the margin
+        step(d, 2, "one line only", alone_on="x_linear"),  # another line's
+        step(e, 2, "one line only", stage="audit"),  # not a forward step
+        step(f, 2, "one line only", improvement=0.20),  # kept in the end
+        step(g, 2, "one line only", alone_on=""),  # no line shows it at all
+    ]
+    residual = Unexplained(
+        "line y_linear at 100.0 mm", f"systematic{NOTHING_EXPLAINS}", 0.5, line="y_linear"
+    )
+    jump = Unexplained("line y_linear, run 2 at 100.0 mm", "a step in time", 0.5, line="")
+    (named, untouched) = with_one_line_effects([residual, jump], steps, {f.key}, 0.03)
+    assert untouched == jump
+    assert [s.finding.effect for s in named.one_line_effects] == [a]
+    assert named.one_line_effects[0].step == 3
+    assert NOTHING_EXPLAINS not in named.description
+    assert f"{a.label}, fitted to it, was refused (12.0 % better held out, step 3)" in (
+        named.description
+    )
+    # nothing to name: the entry is left as the residual test wrote it
+    (alone,) = with_one_line_effects([residual], steps[2:], {f.key}, 0.03)
+    assert alone == residual

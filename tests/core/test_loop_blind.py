@@ -1146,9 +1146,9 @@ def test_a_surface_the_plan_sees_alike_at_every_place_is_named_among_the_rivals(
 
 def test_a_bump_one_line_alone_shows_is_reported_with_the_effects_that_would_explain_it() -> None:
     # twelve-line plan: a 1.0 µm bump of EYX at X 319 mm that only diag_xy_pp shows. A local
-    # defect of Y along X or of X along Y fits it alike, 14 % better held out, and is refused as
-    # one line cannot tell it from its own set-up; the report said "no effect of the catalogue
-    # explains it" of the line. It names both now, and what would tell them apart
+    # defect of Y along X or of X along Y fits it alike at step 1, 14.4 % better held out, and is
+    # refused as one line cannot tell it from its own set-up; the report said "no effect of the
+    # catalogue explains it" of the line. It names both now, and what would tell
     report, truth = _loop(53046)
     (bump,) = truth["effects"]
     assert report["effects"] == []
@@ -1160,7 +1160,9 @@ def test_a_bump_one_line_alone_shows_is_reported_with_the_effects_that_would_exp
         ("local", "Y", "X"),
     }
     for effect in named:
-        assert effect["held_out_gain_percent"] >= 3.0
+        assert effect["step"] == 1
+        assert effect["held_out_gain_percent"] == pytest.approx(14.4, abs=1.5)
+        assert "held_out_over" not in effect  # the gain is over the plan
         assert effect["parameters"]["peak_mm"] == pytest.approx(
             bump["parameters"]["centre_mm"], abs=15.0
         )
