@@ -396,18 +396,35 @@ def summary_table(result: Mapping[str, Any]) -> str:
             lines.append(f"   step {step['step']}, {label} kept: {moved}")
     basis = result.get("basis")
     if basis:
-        tried = ", ".join(f"{t['spacing_mm']:g} mm {t['cv_rms_um']:.3f}" for t in basis["tried"])
+        tried = ", ".join(
+            f"{t['spacing_mm']:g} mm {t['cv_rms_all_lines']:.3f} / {t['cv_rms_um']:.3f}"
+            for t in basis["tried"]
+        )
         refused = "".join(
             f"; {t['spacing_mm']:g} mm refused: it leaves a systematic residual on "
             f"{', '.join(t['leaves_structure_on'])}"
             for t in basis["tried"]
             if t.get("leaves_structure_on")
         )
-        how = f" (CV RMS µm: {tried}{refused})" if basis["chosen_by"] == "cross-validation" else ""
+        how = (
+            f" (CV RMS µm, every line, angular at σ exchange / lengths alone: {tried}{refused})"
+            if basis["chosen_by"] == "cross-validation"
+            else ""
+        )
         lines.append(
             f"basis of the 21 errors: cubic B-splines every {basis['spacing_mm']:g} mm, "
             f"{'chosen by cross-validation' if how else 'as set'}{how}"
         )
+        missed = basis.get("shape_missed")
+        if missed:
+            largest = sorted(missed["rms"].items(), key=lambda kv: -kv[1])
+            sizes = ", ".join(
+                f"{eid} {value:.3f} {'µrad' if eid[1] in 'ABC' else 'µm'}" for eid, value in largest
+            )
+            lines.append(
+                f"   what it misses of the errors' shape against {missed['against_spacing_mm']:g} "
+                f"mm, beyond the noise, is in their uncertainty (RMS over the stroke): {sizes}"
+            )
     if result["effects"]:
         lines.append("")
         lines.append("effects kept:")

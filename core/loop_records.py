@@ -173,6 +173,12 @@ class SpacingChoice:
     #: moves of the 21 errors' parameters (rows, in the chosen basis) to the fits of spacings
     #: that predict as well: what the plan does not settle about the basis
     doubt: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    #: moves (rows, in the chosen basis) of each function by what the chosen basis misses of
+    #: its shape against the finest spacing tried, beyond the noise (:func:`_basis_bias`), and
+    #: per such function that RMS (µm or µrad over its stroke); both folded into the covariance
+    bias: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    bias_rms: dict[str, float] = field(default_factory=dict)
+    finest_mm: float | None = None
 
     def report(self) -> dict[str, object]:
         return {
@@ -188,6 +194,18 @@ class SpacingChoice:
                 }
                 for k, v in sorted(self.cv_rms_um.items())
             ],
+            **(
+                {
+                    "shape_missed": {
+                        "against_spacing_mm": self.finest_mm,
+                        "rms": dict(sorted(self.bias_rms.items())),
+                        "unit": "µm for a translation, µrad for a rotation, over the stroke",
+                        "in_uncertainty": True,
+                    }
+                }
+                if self.bias_rms
+                else {}
+            ),
         }
 
 

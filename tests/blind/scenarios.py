@@ -385,13 +385,15 @@ def build_scenario(
     category: str | None = None,
     kinds: Sequence[str] | None = None,
     material_logged: bool | None = None,
+    noise_draw: int = 0,
 ) -> Scenario:
     """Draw everything for ``seed``.
 
     Optional overrides (each leaves every other draw of the seed as it was): ``plan`` (a path
     relative to the repository), ``category``, ``kinds`` (catalogue kinds to draw, e.g.
     ``["reversal", "cosine"]``, or one outside name such as ``["time_periodic"]``; implies the
-    category) and ``material_logged``.
+    category), ``material_logged`` and ``noise_draw`` (a positive number: the readings' noise
+    drawn anew, the machine, effects and session as they were; 0: the seed's own noise).
     """
     rng = np.random.default_rng(seed)
     plan_source = _weighted(rng, PLANS)
@@ -474,7 +476,7 @@ def build_scenario(
     logged = bool(rng.random() < 0.6)
     material_logged = logged if material_logged is None else material_logged
     environment = set_environment(rng, session, drift, material_logged)
-    noise_rng = np.random.default_rng([seed, 1])
+    noise_rng = np.random.default_rng([seed, 1] if noise_draw == 0 else [seed, 1, noise_draw])
     deviations = {line.spec.name: measure_line(machine, effects, line, noise, noise_rng)
                   for line in session.lines}
     entries = []
@@ -558,10 +560,11 @@ def _rounded(obj):
 
 
 def make_scenario(seed: int, plan: str | None = None, category: str | None = None,
-                  kinds: Sequence[str] | None = None, material_logged: bool | None = None) -> dict:
+                  kinds: Sequence[str] | None = None, material_logged: bool | None = None,
+                  noise_draw: int = 0) -> dict:
     """Everything a scenario folder holds, as text: ``truth`` (the manifest, JSON-serialisable),
     ``plan_toml`` and ``logs`` ({"logs/<line>.rtl": text}). Overrides as :func:`build_scenario`."""
-    s = build_scenario(seed, plan, category, kinds, material_logged)
+    s = build_scenario(seed, plan, category, kinds, material_logged, noise_draw)
     files = {line.spec.name: log_name(line) for line in s.session.lines}
     logs = {
         log_name(line): rtl_text(line, s.deviations[line.spec.name], s.session.start_posix,
@@ -573,11 +576,11 @@ def make_scenario(seed: int, plan: str | None = None, category: str | None = Non
 
 def write_scenario(seed: int, folder: str | Path, plan: str | None = None,
                    category: str | None = None, kinds: Sequence[str] | None = None,
-                   material_logged: bool | None = None) -> tuple[Path, dict]:
+                   material_logged: bool | None = None, noise_draw: int = 0) -> tuple[Path, dict]:
     """Write plan.toml, logs/*.rtl|rta and truth.json into ``folder``; return (plan path, truth).
     Overrides as :func:`build_scenario`."""
     folder = Path(folder)
-    made = make_scenario(seed, plan, category, kinds, material_logged)
+    made = make_scenario(seed, plan, category, kinds, material_logged, noise_draw)
     (folder / "logs").mkdir(parents=True, exist_ok=True)
     for relative, text in made["logs"].items():
         (folder / relative).write_bytes(text.encode("utf-8"))

@@ -195,13 +195,14 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
     return functions, squareness, max(worst_ratio, squareness_ratio(result, squareness))
 
 
-def run_blind(seed: int) -> Outcome:
-    """Write the blind scenario ``seed``, import it with volucal, close the loop, score."""
+def run_blind(seed: int, noise_draw: int = 0) -> Outcome:
+    """Write the blind scenario ``seed`` (with ``noise_draw``, its readings' noise drawn anew:
+    :func:`scenarios.build_scenario`), import it with volucal, close the loop, score."""
     from volucal.core.io.plan import import_plan, load_plan
     from volucal.core.residuals import close_loop
 
     with tempfile.TemporaryDirectory(prefix="volucal-blind-") as tmp:
-        plan_path, truth = write_scenario(seed, tmp)
+        plan_path, truth = write_scenario(seed, tmp, noise_draw=noise_draw)
         start = time.perf_counter()
         measurement = import_plan(load_plan(plan_path)).measurement
         result = close_loop(measurement)
