@@ -16,10 +16,12 @@ the fact among twenty-odd quantities, says little: the same machine measured aga
 its bands or its realisation were at fault.
 
     python benchmarks/bench_loop_bands.py [--seed 590001] [--scenarios 12] [--draws 20]
-                                          [--workers 2] [--seeds 57178,56129]
+                                          [--workers 2] [--seeds 57178,56129] [--with-own-noise]
 
 Scenarios are the first ``--scenarios`` seeds from ``--seed`` on whose category is clean or
-effects (outside effects have no truth the 21 errors can match), or the ``--seeds`` named.
+effects (outside effects have no truth the 21 errors can match), or the ``--seeds`` named. Each
+is measured ``--draws`` times with fresh noise, and with ``--with-own-noise`` once more with the
+seed's own (the suite's realisation).
 """
 
 from __future__ import annotations
@@ -39,7 +41,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "independent"))
 sys.path.insert(0, str(ROOT))
 
-SQUARENESS_IDS = ("EC0Y", "EB0Z", "EA0Z")
+from volucal.core.errors import SQUARENESS_IDS  # noqa: E402
+
 #: What a squareness's |z| exceeds in this share of draws when its band is honest (Gaussian).
 GAUSSIAN_TAIL = {2.0: 0.0455, 3.0: 0.0027}
 
@@ -143,6 +146,11 @@ def main() -> int:
     parser.add_argument("--seeds", type=str, help="comma-separated seeds instead")
     parser.add_argument("--draws", type=int, default=20)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument(
+        "--with-own-noise",
+        action="store_true",
+        help="measure each scenario once more with the seed's own noise",
+    )
     args = parser.parse_args()
     # one BLAS thread per spawned worker, as bench_loop_suite.py
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -152,7 +160,8 @@ def main() -> int:
         if args.seeds
         else _chosen(args.seed, args.scenarios)
     )
-    jobs = [(seed, draw) for seed in seeds for draw in range(args.draws)]
+    first = 0 if args.with_own_noise else 1
+    jobs = [(seed, draw) for seed in seeds for draw in range(first, args.draws + 1)]
     started = time.perf_counter()
     spawn = multiprocessing.get_context("spawn")
     draws = []
@@ -169,7 +178,7 @@ def main() -> int:
     print()
     print("\n".join(_summary(draws)))
     print(
-        f"\n{len(seeds)} scenarios × {args.draws} draws on {args.workers} workers in "
+        f"\n{len(seeds)} scenarios × {args.draws + 1 - first} draws on {args.workers} workers in "
         f"{(time.perf_counter() - started) / 60:.1f} min"
     )
     return 0

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from .compensation.export_common import DEFAULT_MAX_CORRECTION_UM, ExportOptions
 from .effects import HigherOrder
-from .errors import ErrorModel
+from .errors import ERROR_INFO, ErrorModel
 from .identify import Identification, UncertaintyBudget, parameters_report
 from .loop_source import LoopSource
 from .progress import CancelToken, ProgressCallback, check, report
@@ -33,6 +33,7 @@ from .residuals import (
     LoopResult,
     close_loop,
 )
+from .thermal import UNIT_SYMBOL
 from .userror import UserError
 
 FloatArray = NDArray[np.float64]
@@ -419,7 +420,7 @@ def summary_table(result: Mapping[str, Any]) -> str:
         if missed:
             largest = sorted(missed["rms"].items(), key=lambda kv: -kv[1])
             sizes = ", ".join(
-                f"{eid} {value:.3f} {'µrad' if eid[1] in 'ABC' else 'µm'}" for eid, value in largest
+                f"{eid} {value:.3f} {UNIT_SYMBOL[ERROR_INFO[eid].unit]}" for eid, value in largest
             )
             lines.append(
                 f"   what it misses of the errors' shape against {missed['against_spacing_mm']:g} "

@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from .effects import CrossAxis, Effect, ThermalDrift
-from .errors import AXIS_ERROR_IDS, ERROR_INFO, SQUARENESS_IDS, ErrorModel, project_to_gauge
+from .errors import AXIS_ERROR_IDS, ERROR_INFO, SQUARENESS_IDS, ErrorModel, gauge_null_space
 from .identify import CrossValidation, Identification, cross_validate, identify
 from .identify_system import Gauge
 from .loop_backward import _given_way
@@ -500,73 +500,96 @@ def _choose_spacing(
             break
         refused[spacing_mm] = tuple(sorted(left))
     # spacings that predict as well (within the tie) are fits the plan cannot rank below the
-    # chosen one: their moves of the 21 errors widen its covariance (:func:`_with_shape_doubt`)
+    # chosen one: their moves of the 21 errors widen its covariance (:func:`_with_shape_doubt`);
+    # the finest spacing tried, where coarser than the chosen one, by what the chosen basis
+    # misses of each function's shape against it (:func:`_shape_missed`) instead, not twice
+    finest = min(fits)
     rivals = [
         fits[s]
         for s in ratio
-        if s != chosen
+        if s not in (chosen, finest)
         and s not in refused
         and (ratio[s] <= ratio[chosen] * (1.0 + options.tie) or um[s] < um[chosen])
     ]
     moves = [_in_basis(r.model.parameters[None, :], r.model, fit.model)[0] for r in rivals]
     doubt = np.reshape([m - fit.model.parameters for m in moves], (-1, fit.model.parameter_count))
-    finest = min(fits)
-    bias, bias_rms = (
-        _basis_bias(fit, fits[finest]) if finest != chosen else (np.zeros((0, 0)), {})
+    missed, missed_rms = (
+        _shape_missed(fit, fits[finest]) if finest != chosen else (np.zeros((0, 0)), {})
     )
     return fit, cv, SpacingChoice(
-        chosen, reference, um, rms, cv.method, refused, doubt, bias, bias_rms, finest
+        chosen, reference, um, rms, cv.method, refused, doubt, missed, missed_rms, finest
     )
 
 
-def _basis_bias(fit: Identification, finest: Identification) -> tuple[FloatArray, dict[str, float]]:
+def _shape_missed(
+    fit: Identification, finest: Identification
+) -> tuple[FloatArray, dict[str, float]]:
     """What ``fit``'s coarser basis misses of each error function's shape, measured against the
     fit at the finest spacing tried (``finest``): moves of ``fit``'s parameters (rows), one per
-    function the two fits tell apart beyond their noise, and per such function its RMS (µm or
-    µrad over the stroke).
+    function whose two fits differ beyond what their noise explains, and per such function the
+    RMS of the miss (µm or µrad over the stroke).
 
     A coarser basis wins the cross-validation where what it averages of the noise outweighs
     what it misses of a bend: the miss stays, the same in every re-measurement, and the fit's
-    covariance, which holds the noise alone, does not cover it (blind 57178, demo plan, clean,
-    0.27 µm noise: 150 mm chosen in 9 of 12 fresh noise draws; EXZ missed the truth by 1.7 times
-    the RMS its band states, over the draws; at 50 mm, by 0.95 times). The two fits differ by
-    that miss and by the noise the finer basis follows and the coarser one averages, whose
-    expected square over the stroke is about the difference of their variances (a finer basis
-    holds nearly every shape of a coarser one); what the mean square difference exceeds that by is the miss's
-    square, estimated without bias (zero where it does not exceed it). Each function's move
-    towards the finest fit, in ``fit``'s basis and gauge, is scaled to that RMS: added to the
-    covariance as its outer product, it widens the band the RMS of the miss."""
+    covariance, which holds the noise alone, does not cover it (blind 590005, demo plan, clean,
+    0.18 µm noise, measured again with fresh noise: 150 mm kept in some draws, and over eight
+    the Z positioning missed the truth by 3.0 times the RMS its band stated; with the basis held
+    at 50 mm, 0.8 times). The two fits differ by that miss and by the noise the finer basis
+    follows and the coarser one averages. A finer basis holds nearly every shape of a coarser
+    one, so that noise's covariance over the stroke is about the difference of the two fits'
+    (both at the finest fit's σ: the coarser fit's own σ holds some of the miss), and its mean
+    square is about that difference's trace: what the mean square difference exceeds it by
+    estimates the miss's square, unbiased before it is clamped at zero. A function counts where
+    it exceeds it by more than twice what that noise alone spreads it by (the standard
+    deviation of a Gaussian vector's mean square, √(2 Σ λ²) over the eigenvalues λ of its
+    covariance), so that a basis missing nothing widens few bands. Its move towards the finest
+    fit, least-squares in ``fit``'s basis and gauge, is scaled to that RMS: added to the
+    covariance as its outer product, it widens the band by the RMS of the miss.
+
+    ``finest`` is the loop's own fit where the identification's spacing is the finest of the
+    loop's spacings (the default), else a first-order trial at that spacing (what the
+    nonlinear refinement adds is second order, far below a band); its covariance is statistical
+    either way."""
     model = fit.model
+    noise = (finest.sigma_scale / fit.sigma_scale) ** 2 if fit.sigma_scale > 0 else 1.0
     rows: list[FloatArray] = []
     sizes: dict[str, float] = {}
     for eid in AXIS_ERROR_IDS:
         axis = str(ERROR_INFO[eid].axis)
         low, high = model.machine.stroke(axis)
-        q = np.linspace(low, high, 201)
-        values, variances = [], []
-        for f in (fit, finest):
+        q = np.linspace(low, high, STROKE_POINTS)
+        values, covariances = [], []
+        for f, scale in ((fit, noise), (finest, 1.0)):
             sl = f.model.parameter_slices[eid]
             design = f.model.functions[eid].basis.design(q)
             values.append(design @ f.model.parameters[sl])
-            variances.append(np.einsum("ij,jk,ik->i", design, f.covariance[sl, sl], design))
+            covariances.append(scale * design @ f.covariance[sl, sl] @ design.T)
         difference = values[1] - values[0]
-        square = float(np.mean(difference**2) - np.mean(variances[1] - variances[0]))
-        if square <= 0.0:
+        between = covariances[1] - covariances[0]
+        expected = float(np.trace(between)) / len(q)
+        spread = float(np.sqrt(2.0 * np.sum(np.linalg.eigvalsh(between) ** 2))) / len(q)
+        square = float(np.mean(difference**2)) - expected
+        if square <= 2.0 * spread:
             continue
-        basis = model.functions[eid].basis
-        design = basis.design(q)
-        move = np.linalg.lstsq(design, difference, rcond=None)[0]
-        move = project_to_gauge(
-            basis, move, model.machine.reference(axis), ERROR_INFO[eid].is_straightness
+        null = gauge_null_space(
+            model.functions[eid].basis,
+            model.machine.reference(axis),
+            ERROR_INFO[eid].is_straightness,
         )
-        shown = float(np.sqrt(np.mean((design @ move) ** 2)))
+        design = model.functions[eid].basis.design(q) @ null
+        theta = np.linalg.lstsq(design, difference, rcond=None)[0]
+        shown = float(np.sqrt(np.mean((design @ theta) ** 2)))
         if shown <= 0.0:
             continue
         row = np.zeros(model.parameter_count)
-        row[model.parameter_slices[eid]] = move * np.sqrt(square) / shown
+        row[model.parameter_slices[eid]] = null @ theta * np.sqrt(square) / shown
         rows.append(row)
         sizes[eid] = float(np.sqrt(square))
     return np.reshape(rows, (-1, model.parameter_count)), sizes
+
+
+#: Points over a stroke on which one function is compared with another or moved between bases.
+STROKE_POINTS = 201
 
 
 def _in_basis(moves: FloatArray, old: ErrorModel, new: ErrorModel) -> FloatArray:
@@ -577,7 +600,7 @@ def _in_basis(moves: FloatArray, old: ErrorModel, new: ErrorModel) -> FloatArray
     was, now = old.parameter_slices, new.parameter_slices
     for eid in AXIS_ERROR_IDS:
         low, high = old.machine.stroke(str(ERROR_INFO[eid].axis))
-        q = np.linspace(low, high, 201)
+        q = np.linspace(low, high, STROKE_POINTS)
         change = old.functions[eid].basis.design(q) @ moves[:, was[eid]].T
         design = new.functions[eid].basis.design(q)
         out[:, now[eid]] = np.linalg.lstsq(design, change, rcond=None)[0].T
@@ -592,7 +615,7 @@ def _with_shape_doubt(
     """``fit`` with the errors' covariance widened by ``share`` of the outer product of each
     move (one per row): by half, of a kept surface or set-up effect to a rival that fits as well
     (:func:`_unsettled`, :func:`_alike`, :func:`_interchangeable`); in full, of a function by
-    what its basis misses (:func:`_basis_bias`). In the model's parameters and in the fit's
+    what its basis misses (:func:`_shape_missed`). In the model's parameters and in the fit's
     normal inverse alike (a refined function's covariance is made from the latter)."""
     moves = [move for d in deltas for move in np.atleast_2d(d) if np.any(move)]
     if not moves:

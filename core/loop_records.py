@@ -174,10 +174,11 @@ class SpacingChoice:
     #: that predict as well: what the plan does not settle about the basis
     doubt: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
     #: moves (rows, in the chosen basis) of each function by what the chosen basis misses of
-    #: its shape against the finest spacing tried, beyond the noise (:func:`_basis_bias`), and
-    #: per such function that RMS (µm or µrad over its stroke); both folded into the covariance
-    bias: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
-    bias_rms: dict[str, float] = field(default_factory=dict)
+    #: its shape against the finest spacing tried, beyond the noise (:func:`_shape_missed`),
+    #: which widen its covariance; per such function the RMS of that miss (µm or µrad over
+    #: its stroke); and that finest spacing (mm)
+    shape_missed: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    shape_missed_rms: dict[str, float] = field(default_factory=dict)
     finest_mm: float | None = None
 
     def report(self) -> dict[str, object]:
@@ -198,12 +199,11 @@ class SpacingChoice:
                 {
                     "shape_missed": {
                         "against_spacing_mm": self.finest_mm,
-                        "rms": dict(sorted(self.bias_rms.items())),
+                        "rms": dict(sorted(self.shape_missed_rms.items())),
                         "unit": "µm for a translation, µrad for a rotation, over the stroke",
-                        "in_uncertainty": True,
                     }
                 }
-                if self.bias_rms
+                if self.shape_missed_rms
                 else {}
             ),
         }

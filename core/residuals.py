@@ -399,7 +399,7 @@ def _close_loop(
     if spacing.spacing_mm != spacing.reference_mm:
         doubts = [_in_basis(np.atleast_2d(d), state.current.model, current.model) for d in doubts]
     current = _with_shape_doubt(current, [*doubts, spacing.doubt])
-    current = _with_shape_doubt(current, [spacing.bias], share=1.0)
+    current = _with_shape_doubt(current, [spacing.shape_missed], share=1.0)
     current = _with_surface_doubt(current, state.surface_doubt)
     report(progress, 1.0, "loop closed")
     rivals = tuple(state.rivals.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
