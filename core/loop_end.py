@@ -28,6 +28,9 @@ from .measurement import Measurement
 from .progress import CancelToken, ProgressCallback, check, report
 from .readings import Readings
 
+#: Points over a stroke on which one function is compared with another or moved between bases.
+STROKE_POINTS = 201
+
 
 def _surface_doubts_at_the_end(
     state: _State,
@@ -551,7 +554,7 @@ def _shape_missed(
     nonlinear refinement adds is second order, far below a band); its covariance is statistical
     either way."""
     model = fit.model
-    noise = (finest.sigma_scale / fit.sigma_scale) ** 2 if fit.sigma_scale > 0 else 1.0
+    at_finest_sigma = (finest.sigma_scale / fit.sigma_scale) ** 2 if fit.sigma_scale > 0 else 1.0
     rows: list[FloatArray] = []
     sizes: dict[str, float] = {}
     for eid in AXIS_ERROR_IDS:
@@ -559,7 +562,7 @@ def _shape_missed(
         low, high = model.machine.stroke(axis)
         q = np.linspace(low, high, STROKE_POINTS)
         values, covariances = [], []
-        for f, scale in ((fit, noise), (finest, 1.0)):
+        for f, scale in ((fit, at_finest_sigma), (finest, 1.0)):
             sl = f.model.parameter_slices[eid]
             design = f.model.functions[eid].basis.design(q)
             values.append(design @ f.model.parameters[sl])
@@ -586,10 +589,6 @@ def _shape_missed(
         rows.append(row)
         sizes[eid] = float(np.sqrt(square))
     return np.reshape(rows, (-1, model.parameter_count)), sizes
-
-
-#: Points over a stroke on which one function is compared with another or moved between bases.
-STROKE_POINTS = 201
 
 
 def _in_basis(moves: FloatArray, old: ErrorModel, new: ErrorModel) -> FloatArray:
