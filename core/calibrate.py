@@ -408,7 +408,9 @@ def summary_table(result: Mapping[str, Any]) -> str:
             if t.get("leaves_structure_on")
         )
         how = (
-            f" (CV RMS µm, every line, angular at σ exchange / lengths alone: {tried}{refused})"
+            f" (CV RMS µm over the readings each and the {basis['reference_spacing_mm']:g} mm "
+            f"basis both predict, every line, angular at σ exchange / lengths alone: "
+            f"{tried}{refused})"
             if basis["chosen_by"] == "cross-validation"
             else ""
         )

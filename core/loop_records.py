@@ -186,6 +186,7 @@ class SpacingChoice:
             "spacing_mm": self.spacing_mm,
             "chosen_by": "cross-validation" if len(self.cv_rms_um) > 1 else "set",
             "method": self.method,
+            "reference_spacing_mm": self.reference_mm,
             "tried": [
                 {
                     "spacing_mm": k,

@@ -101,7 +101,9 @@ def test_a_spacing_that_is_no_length_is_one_clear_error(
 def test_a_shape_doubt_moves_to_the_chosen_basis_unchanged_where_both_bases_hold_it() -> None:
     # the loop's doubts on a surface's shape are moves of the 21 errors found at the effects'
     # spacing; once a coarser basis is kept they widen its covariance. A move both bases hold
-    # (a cubic along each stroke, a squareness) must arrive unchanged
+    # (a gauged cubic along each stroke, a squareness) must arrive unchanged, and one the coarser
+    # basis cannot follow arrives within its gauge: zero at the reference position, and a
+    # straightness with no slope (that is the squareness's), not a move no fit could make
     from volucal.core.errors import AXIS_ERROR_IDS, ERROR_INFO, SQUARENESS_IDS, ErrorModel
     from volucal.core.errors import default_basis as basis
     from volucal.core.loop_end import _in_basis
@@ -111,25 +113,52 @@ def test_a_shape_doubt_moves_to_the_chosen_basis_unchanged_where_both_bases_hold
     coarse = ErrorModel.zero(PAPER_MACHINE, lambda axis, _: basis(PAPER_MACHINE, axis, 150.0))
     assert coarse.parameter_count < fine.parameter_count
     rng = np.random.default_rng(5)
-    move = np.zeros(fine.parameter_count)
-    slices = fine.parameter_slices
-    cubics = {}
-    for eid in AXIS_ERROR_IDS:
-        low, high = PAPER_MACHINE.stroke(str(ERROR_INFO[eid].axis))
+
+    def gauged(eid: str, shape) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
+        # the shape on 57 points of the stroke, made zero at the reference and, for a
+        # straightness, of no least-squares slope (errors.gauge_constraints' dense grid)
+        axis = str(ERROR_INFO[eid].axis)
+        low, high = PAPER_MACHINE.stroke(axis)
+        reference = PAPER_MACHINE.reference(axis)
+        dense = np.linspace(low, high, 801)
+        slope = np.polyfit(dense, shape(dense), 1)[0] if ERROR_INFO[eid].is_straightness else 0.0
         q = np.linspace(low, high, 57)
-        cubics[eid] = np.polyval(rng.normal(size=4), (q - low) / (high - low))
-        design = fine.functions[eid].basis.design(q)
-        move[slices[eid]] = np.linalg.lstsq(design, cubics[eid], rcond=None)[0]
-    for eid in SQUARENESS_IDS:
-        move[slices[eid]] = rng.normal()
-    moved = _in_basis(move[None, :], fine, coarse)[0]
-    for eid in AXIS_ERROR_IDS:
-        low, high = PAPER_MACHINE.stroke(str(ERROR_INFO[eid].axis))
-        q = np.linspace(low, high, 57)
-        values = coarse.functions[eid].basis.design(q) @ moved[coarse.parameter_slices[eid]]
-        assert values == pytest.approx(cubics[eid], abs=1e-9), eid
-    for eid in SQUARENESS_IDS:
-        assert moved[coarse.parameter_slices[eid]] == pytest.approx(move[slices[eid]])
+        return q, shape(q) - slope * (q - reference) - shape(np.array([reference]))[0]
+
+    for wiggle, exact in ((0.0, True), (1.0, False)):
+        move = np.zeros(fine.parameter_count)
+        slices = fine.parameter_slices
+        shapes = {}
+        for eid in AXIS_ERROR_IDS:
+            low, high = PAPER_MACHINE.stroke(str(ERROR_INFO[eid].axis))
+            a, phase = rng.normal(size=4), rng.uniform(0, 2 * np.pi)
+
+            def shape(x, a=a, low=low, high=high, phase=phase, wiggle=wiggle):  # type: ignore[no-untyped-def]
+                u = (x - low) / (high - low)
+                return np.polyval(a, u) + wiggle * np.sin(2 * np.pi * x / 60.0 + phase)
+
+            q, shapes[eid] = gauged(eid, shape)
+            design = fine.functions[eid].basis.design(q)
+            move[slices[eid]] = np.linalg.lstsq(design, shapes[eid], rcond=None)[0]
+        for eid in SQUARENESS_IDS:
+            move[slices[eid]] = rng.normal()
+        moved = _in_basis(move[None, :], fine, coarse)[0]
+        for eid in AXIS_ERROR_IDS:
+            axis = str(ERROR_INFO[eid].axis)
+            low, high = PAPER_MACHINE.stroke(axis)
+            function = coarse.functions[eid].basis.design
+            values = function(np.linspace(low, high, 57)) @ moved[coarse.parameter_slices[eid]]
+            if exact:
+                assert values == pytest.approx(shapes[eid], abs=1e-9), eid
+            reference = PAPER_MACHINE.reference(axis)
+            at_reference = function(np.array([reference])) @ moved[coarse.parameter_slices[eid]]
+            assert at_reference == pytest.approx(0.0, abs=1e-9), eid
+            if ERROR_INFO[eid].is_straightness:
+                dense = np.linspace(low, high, 801)
+                tilt = np.polyfit(dense, function(dense) @ moved[coarse.parameter_slices[eid]], 1)
+                assert tilt[0] == pytest.approx(0.0, abs=1e-9), eid
+        for eid in SQUARENESS_IDS:
+            assert moved[coarse.parameter_slices[eid]] == pytest.approx(move[slices[eid]])
 
 
 def test_a_coarser_basis_that_leaves_a_bend_the_runs_agree_on_is_refused_and_said(
@@ -153,3 +182,8 @@ def test_a_coarser_basis_that_leaves_a_bend_the_runs_agree_on_is_refused_and_sai
     assert tried[150.0]["leaves_structure_on"]
     assert basis["spacing_mm"] == 100.0
     assert "150 mm refused: it leaves a systematic residual on" in out
+    # each spacing's figures are over the readings it and the identification's own spacing
+    # both predict, not the loop table's (those the fits before and after the loop predict):
+    # the console says which
+    assert basis["reference_spacing_mm"] == 50.0
+    assert "over the readings each and the 50 mm basis both predict" in out

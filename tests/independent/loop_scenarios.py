@@ -604,60 +604,71 @@ def _single_axis_truth(scenario: Scenario, eid: str, q: np.ndarray) -> np.ndarra
     return total
 
 
+def _folded_designs(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, dict[int, np.ndarray]]:  # type: ignore[no-untyped-def]
+    """The function ``eid``'s design at q over its own parameters, and per kept effect folded
+    into it (by index in the final fit) the design over that effect's values (an effect's error
+    is linear in its values once a period, a place or a time constant is chosen)."""
+    model = result.final.model
+    own = model.functions[eid].basis.design(q)
+    effects: dict[int, np.ndarray] = {}
+    if eid[1] in AXES:
+        d, a = AXES.index(eid[1]), eid[2]
+        stroke = {axis: model.machine.stroke(axis) for axis in AXES}
+        states = fold_states(stroke, a, q)
+        for index, effect in enumerate(result.final.effects):
+            surface = effect.kind == "cross_axis" and a in (effect.along, effect.across)
+            if (effect.kind in ("cyclic", "local") and effect.axis == a) or surface:
+                units = np.eye(len(result.final.effect_parameters[index]))
+                effects[index] = np.stack(
+                    [effect.error_um(u, model.machine, states)[:, d] for u in units], axis=1
+                )
+    return own, effects
+
+
+def _stated_joint(result, ids: list[str], effects: list[int]) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """The joint stated covariance of the model parameters of ``ids`` (in that order) and the
+    values of the kept effects ``effects``: each block as the final fit states it (the 21
+    errors' and the effects' own, with what the plan leaves open), and between blocks from the
+    fit's normal inverse."""
+    from volucal.core.identify_system import Gauge
+
+    fit = result.final
+    slices = [fit.model.parameter_slices[i] for i in ids]
+    rows = np.concatenate([np.arange(sl.start, sl.stop) for sl in slices])
+    sizes = [len(rows)] + [len(fit.effect_parameters[k]) for k in effects]
+    at = np.cumsum([0, *sizes])
+    covariance = np.zeros((at[-1], at[-1]))
+    covariance[: at[1], : at[1]] = fit.covariance[np.ix_(rows, rows)]
+    for k, index in enumerate(effects, start=1):
+        covariance[at[k] : at[k + 1], at[k] : at[k + 1]] = fit.effect_covariances[index]
+    columns = [b.columns for b in fit.system.blocks if b.kind == "effect"]
+    if effects and len(columns) == len(fit.effects):
+        joint = fit.normal_inverse * fit.sigma_scale**2
+        gauge = Gauge.for_model(fit.model).matrix
+        size = gauge.shape[1]
+        for k, index in enumerate(effects, start=1):
+            cross = gauge[rows] @ joint[:size, columns[index]]
+            covariance[: at[1], at[k] : at[k + 1]] = cross
+            covariance[at[k] : at[k + 1], : at[1]] = cross.T
+            for m, other in enumerate(effects[k:], start=k + 1):
+                between = joint[columns[index], columns[other]]
+                covariance[at[k] : at[k + 1], at[m] : at[m + 1]] = between
+                covariance[at[m] : at[m + 1], at[k] : at[k + 1]] = between.T
+    return covariance
+
+
 def _folded(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
     """The function ``eid`` (E<d><a>) along axis a on the line through the middle of the other
     strokes with the kept effects folded into it as :func:`_single_axis_truth` folds the
     truth's (cycles and local defects of a in d, surfaces in d over a and another axis): what
     the folded effects add at q, the design at q over the function's parameters and every
-    folded effect's (an effect's error is
-    linear in its values once a period, a place or a time constant is chosen), and their joint
-    stated covariance — each block as the final fit states it (the 21 errors' and the effects'
-    own, with what the plan leaves open), and between blocks from the fit's normal inverse."""
-    from volucal.core.identify_system import Gauge
-
-    fit = result.final
-    model = fit.model
-    sl = model.parameter_slices[eid]
-    designs = [model.functions[eid].basis.design(q)]
-    folded: list[int] = []
+    folded effect's, and their joint stated covariance (:func:`_stated_joint`)."""
+    own, effects = _folded_designs(result, eid, q)
     added = np.zeros(len(q))
-    if eid[1] in AXES:
-        d, a = AXES.index(eid[1]), eid[2]
-        stroke = {axis: model.machine.stroke(axis) for axis in AXES}
-        states = fold_states(stroke, a, q)
-        for index, (effect, values) in enumerate(
-            zip(fit.effects, fit.effect_parameters, strict=True)
-        ):
-            surface = effect.kind == "cross_axis" and a in (effect.along, effect.across)
-            if (effect.kind in ("cyclic", "local") and effect.axis == a) or surface:
-                units = np.eye(len(values))
-                designs.append(
-                    np.stack(
-                        [effect.error_um(u, model.machine, states)[:, d] for u in units], axis=1
-                    )
-                )
-                added = added + designs[-1] @ np.asarray(values, dtype=float)
-                folded.append(index)
-    sizes = [m.shape[1] for m in designs]
-    at = np.cumsum([0, *sizes])
-    covariance = np.zeros((at[-1], at[-1]))
-    covariance[: at[1], : at[1]] = fit.covariance[sl, sl]
-    for k, index in enumerate(folded, start=1):
-        covariance[at[k] : at[k + 1], at[k] : at[k + 1]] = fit.effect_covariances[index]
-    columns = [b.columns for b in fit.system.blocks if b.kind == "effect"]
-    if folded and len(columns) == len(fit.effects):
-        joint = fit.normal_inverse * fit.sigma_scale**2
-        gauge = Gauge.for_model(model).matrix
-        size = gauge.shape[1]
-        for k, index in enumerate(folded, start=1):
-            cross = gauge[sl] @ joint[:size, columns[index]]
-            covariance[: at[1], at[k] : at[k + 1]] = cross
-            covariance[at[k] : at[k + 1], : at[1]] = cross.T
-            for m, other in enumerate(folded[k:], start=k + 1):
-                between = joint[columns[index], columns[other]]
-                covariance[at[k] : at[k + 1], at[m] : at[m + 1]] = between
-                covariance[at[m] : at[m + 1], at[k] : at[k + 1]] = between.T
-    return added, np.concatenate(designs, axis=1), covariance
+    for index, design in effects.items():
+        added = added + design @ np.asarray(result.final.effect_parameters[index], dtype=float)
+    design = np.concatenate([own, *effects.values()], axis=1)
+    return added, design, _stated_joint(result, [eid], list(effects))
 
 
 def _single_axis_model(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
@@ -684,24 +695,52 @@ def expected_errors(result) -> dict[str, float]:  # type: ignore[no-untyped-def]
     """Per identified function, the RMS error over its stroke (gauge removed as
     :func:`_gauged` removes it) that its stated covariance alone predicts, √(tr(G D C Dᵀ Gᵀ)/n),
     with the kept effects folded into it as :func:`_single_axis_model` folds them; per
-    squareness, its stated standard uncertainty. What an unbiased fit with those bands
-    would miss the truth by: where it is near the bound, no fit of that plan and noise meets the
-    bound reliably."""
-    model, covariance = result.final.model, result.final.covariance
+    squareness, the stated standard uncertainty of the angle :func:`squareness_errors` compares
+    (:func:`_angle_spread`). What an unbiased fit with those bands would miss the truth by:
+    where it is near the bound, no fit of that plan and noise meets the bound reliably."""
+    model = result.final.model
     out = {}
     for eid in result.base.identifiability.identified_ids:
-        sl = model.parameter_slices[eid]
         if eid in model.squareness_urad:
-            out[eid] = float(np.sqrt(max(covariance[sl, sl][0, 0], 0.0)))
+            out[eid] = _angle_spread(result, eid)
             continue
-        low, high = model.machine.stroke(eid[2])
-        q = np.linspace(low, high, 161)
+        q = _stroke_points(model, eid)
         straightness = eid[1] in AXES and eid[1] != eid[2]
         _, design, joint = _folded(result, eid, q)
         design = _gauge_design(design, q, straightness)
         variance = np.einsum("ij,jk,ik->i", design, joint, design)
         out[eid] = float(np.sqrt(max(np.mean(variance), 0.0)))
     return out
+
+
+def _stroke_points(model, eid: str) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """Where a function is compared with the truth: 161 points over its axis' stroke."""
+    low, high = model.machine.stroke(eid[2])
+    return np.linspace(low, high, 161)
+
+
+def _angle_spread(result, sid: str) -> float:  # type: ignore[no-untyped-def]
+    """The stated standard uncertainty (µrad) of the angle between the pair of axes of ``sid``
+    as :func:`squareness_errors` takes it: the squareness plus the least-squares slopes of the
+    pair's two straightness functions with the kept effects folded into them — the squareness's
+    own where the plan identifies neither function. A surface's slice tilts the folded
+    function, and its uncertainty (with its correlation to the squareness) is the angle's too."""
+    identified = set(result.base.identifiability.identified_ids)
+    (first, second), sign = SQUARENESS_PAIRS[sid]
+    ids, weights = [sid], [np.ones(1)]
+    per_effect: dict[int, np.ndarray] = {}
+    if first in identified and second in identified:
+        for eid in (first, second):
+            q = _stroke_points(result.final.model, eid)
+            slope = (q - q.mean()) / np.sum((q - q.mean()) ** 2)
+            own, effects = _folded_designs(result, eid, q)
+            ids.append(eid)
+            weights.append(sign * 1000.0 * (slope @ own))
+            for index, design in effects.items():
+                per_effect[index] = per_effect.get(index, 0.0) + sign * 1000.0 * (slope @ design)
+    covariance = _stated_joint(result, ids, list(per_effect))
+    w = np.concatenate([*weights, *per_effect.values()])
+    return float(np.sqrt(max(w @ covariance @ w, 0.0)))
 
 
 def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, float], float]:  # type: ignore[no-untyped-def]
@@ -778,13 +817,12 @@ def squareness_errors(
 
 
 def squareness_ratio(result, errors: dict[str, float]) -> float:  # type: ignore[no-untyped-def]
-    """The largest ratio of a squareness error (µrad) to its stated standard uncertainty (the
-    statistical part, from the final fit's covariance)."""
-    model = result.final.model
+    """The largest ratio of a squareness error (µrad) to the stated standard uncertainty of the
+    angle it is (:func:`_angle_spread`; the statistical part, from the final fit's
+    covariance)."""
     worst = 0.0
     for sid, error in errors.items():
-        sl = model.parameter_slices[sid]
-        std = float(np.sqrt(max(result.final.covariance[sl, sl][0, 0], 0.0)))
+        std = _angle_spread(result, sid)
         if std > 0:
             worst = max(worst, error / std)
     return worst
