@@ -7,7 +7,8 @@ draw is imported and run through ``close_loop`` with the shipped defaults and sc
 ``bench_loop_suite.py --generator blind`` scores it. Where the kept effect set is the injected
 one, each function's RMS error against the truth (gauge removed, cycles, bumps and surfaces folded
 in) is divided by the RMS error its stated covariance predicts, and each squareness error by its
-stated standard uncertainty.
+stated standard uncertainty (that of the angle between its axes it is scored as: the
+squareness with the slopes of the pair's straightness functions, kept surfaces folded in).
 
 Honest bands give each quantity a mean square ratio over the draws of 1. A squareness's ratio is
 |z| of one Gaussian: beyond 2 in 4.6 % of draws, beyond 3 in 0.27 %; a function's RMS ratio

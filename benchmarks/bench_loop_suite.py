@@ -287,7 +287,8 @@ def main() -> int:
         )
         print(
             "  where the stated uncertainties support the bound (every function's RMS error "
-            "they predict, gauge removed, and every squareness's standard uncertainty at most "
+            "they predict, gauge removed, and every squareness's (as the angle it is scored as) "
+            "standard uncertainty at most "
             f"half of it): within in {accuracy['supported_within']} of {accuracy['supported']}"
         )
         print(

@@ -596,9 +596,9 @@ def _in_basis(moves: FloatArray, old: ErrorModel, new: ErrorModel) -> FloatArray
     have other bases: each function's change least-squares on a fine grid of its stroke within
     ``new``'s gauge, the squareness errors as they are. A move of a gauged fit is gauged, but
     where a coarser basis cannot follow its shape, the free least-squares fit leaves it a value
-    at the reference position (blind 21101, a 50 mm fit's EZY carried to 150 mm: 3.8 µm there,
-    2.1 µm RMS), a move no fit of ``new`` can make, which would widen a band where the gauge
-    holds it at zero."""
+    at the reference position (blind 21101, a 75 mm rival fit's EZY carried to the kept 150 mm:
+    3.8 µm there, 2.1 µm RMS), a move no fit of ``new`` can make, which would widen a band where
+    the gauge holds it at zero."""
     out = np.zeros((len(moves), new.parameter_count))
     was, now = old.parameter_slices, new.parameter_slices
     for eid in AXIS_ERROR_IDS:

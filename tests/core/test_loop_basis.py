@@ -100,13 +100,21 @@ def test_a_spacing_that_is_no_length_is_one_clear_error(
 
 def test_a_shape_doubt_moves_to_the_chosen_basis_unchanged_where_both_bases_hold_it() -> None:
     # the loop's doubts on a surface's shape are moves of the 21 errors found at the effects'
-    # spacing; once a coarser basis is kept they widen its covariance. A move both bases hold
-    # (a gauged cubic along each stroke, a squareness) must arrive unchanged, and one the coarser
-    # basis cannot follow arrives within its gauge: zero at the reference position, and a
-    # straightness with no slope (that is the squareness's), not a move no fit could make
-    from volucal.core.errors import AXIS_ERROR_IDS, ERROR_INFO, SQUARENESS_IDS, ErrorModel
+    # spacing (gauged, as every fit is); once a coarser basis is kept they widen its covariance.
+    # A move both bases hold (a gauged cubic along each stroke, a squareness) must arrive
+    # unchanged; one the coarser basis cannot follow arrives as its nearest move within the
+    # coarser gauge (zero at the reference position, a straightness with no least-squares
+    # slope): not a move no fit of that basis could make. The nearest gauged move is solved
+    # here from the gauge's constraints directly (Lagrange multipliers), not from its null space
+    from volucal.core.errors import (
+        AXIS_ERROR_IDS,
+        ERROR_INFO,
+        SQUARENESS_IDS,
+        ErrorModel,
+        gauge_constraints,
+    )
     from volucal.core.errors import default_basis as basis
-    from volucal.core.loop_end import _in_basis
+    from volucal.core.loop_end import STROKE_POINTS, _in_basis
     from volucal.core.machine import PAPER_MACHINE
 
     fine = ErrorModel.zero(PAPER_MACHINE, lambda axis, _: basis(PAPER_MACHINE, axis, 50.0))
@@ -114,51 +122,56 @@ def test_a_shape_doubt_moves_to_the_chosen_basis_unchanged_where_both_bases_hold
     assert coarse.parameter_count < fine.parameter_count
     rng = np.random.default_rng(5)
 
-    def gauged(eid: str, shape) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
-        # the shape on 57 points of the stroke, made zero at the reference and, for a
-        # straightness, of no least-squares slope (errors.gauge_constraints' dense grid)
+    def nearest_gauged(model: ErrorModel, eid: str, q: np.ndarray, values: np.ndarray):  # type: ignore[no-untyped-def]
+        # least squares of ``values`` at q in the function's basis under the gauge constraints
+        f = model.functions[eid].basis
         axis = str(ERROR_INFO[eid].axis)
-        low, high = PAPER_MACHINE.stroke(axis)
-        reference = PAPER_MACHINE.reference(axis)
-        dense = np.linspace(low, high, 801)
-        slope = np.polyfit(dense, shape(dense), 1)[0] if ERROR_INFO[eid].is_straightness else 0.0
-        q = np.linspace(low, high, 57)
-        return q, shape(q) - slope * (q - reference) - shape(np.array([reference]))[0]
+        rows = gauge_constraints(f, PAPER_MACHINE.reference(axis), ERROR_INFO[eid].is_straightness)
+        design = f.design(q)
+        n, m = design.shape[1], len(rows)
+        kkt = np.block([[design.T @ design, rows.T], [rows, np.zeros((m, m))]])
+        right = np.concatenate([design.T @ values, np.zeros(m)])
+        return np.linalg.solve(kkt, right)[:n]
 
-    for wiggle, exact in ((0.0, True), (1.0, False)):
+    def gauged_cubic(eid: str, q: np.ndarray) -> np.ndarray:
+        # a random cubic less the constant and the line (both bases hold all three) that put
+        # it in the gauge: fine-basis coefficients
+        f = fine.functions[eid].basis
+        axis = str(ERROR_INFO[eid].axis)
+        reference = PAPER_MACHINE.reference(axis)
+        rows = gauge_constraints(f, reference, ERROR_INFO[eid].is_straightness)
+        low, high = PAPER_MACHINE.stroke(axis)
+        exact = [np.polyval(rng.normal(size=4), (q - low) / (high - low)), np.ones_like(q), q]
+        cubic, *gauges = (np.linalg.lstsq(f.design(q), v, rcond=None)[0] for v in exact)
+        gauges = np.stack(gauges[: len(rows)], axis=1)
+        return cubic - gauges @ np.linalg.solve(rows @ gauges, rows @ cubic)
+
+    for wiggle in (0.0, 1.0):
         move = np.zeros(fine.parameter_count)
-        slices = fine.parameter_slices
-        shapes = {}
         for eid in AXIS_ERROR_IDS:
             low, high = PAPER_MACHINE.stroke(str(ERROR_INFO[eid].axis))
-            a, phase = rng.normal(size=4), rng.uniform(0, 2 * np.pi)
-
-            def shape(x, a=a, low=low, high=high, phase=phase, wiggle=wiggle):  # type: ignore[no-untyped-def]
-                u = (x - low) / (high - low)
-                return np.polyval(a, u) + wiggle * np.sin(2 * np.pi * x / 60.0 + phase)
-
-            q, shapes[eid] = gauged(eid, shape)
-            design = fine.functions[eid].basis.design(q)
-            move[slices[eid]] = np.linalg.lstsq(design, shapes[eid], rcond=None)[0]
+            q = np.linspace(low, high, 57)
+            cubic = gauged_cubic(eid, q)
+            shape = fine.functions[eid].basis.design(q) @ cubic
+            shape += wiggle * np.sin(2 * np.pi * q / 60.0 + rng.uniform(0, 2 * np.pi))
+            move[fine.parameter_slices[eid]] = nearest_gauged(fine, eid, q, shape)
         for eid in SQUARENESS_IDS:
-            move[slices[eid]] = rng.normal()
+            move[fine.parameter_slices[eid]] = rng.normal()
         moved = _in_basis(move[None, :], fine, coarse)[0]
         for eid in AXIS_ERROR_IDS:
-            axis = str(ERROR_INFO[eid].axis)
-            low, high = PAPER_MACHINE.stroke(axis)
-            function = coarse.functions[eid].basis.design
-            values = function(np.linspace(low, high, 57)) @ moved[coarse.parameter_slices[eid]]
-            if exact:
-                assert values == pytest.approx(shapes[eid], abs=1e-9), eid
-            reference = PAPER_MACHINE.reference(axis)
-            at_reference = function(np.array([reference])) @ moved[coarse.parameter_slices[eid]]
-            assert at_reference == pytest.approx(0.0, abs=1e-9), eid
-            if ERROR_INFO[eid].is_straightness:
-                dense = np.linspace(low, high, 801)
-                tilt = np.polyfit(dense, function(dense) @ moved[coarse.parameter_slices[eid]], 1)
-                assert tilt[0] == pytest.approx(0.0, abs=1e-9), eid
+            low, high = PAPER_MACHINE.stroke(str(ERROR_INFO[eid].axis))
+            q = np.linspace(low, high, STROKE_POINTS)
+            change = fine.functions[eid].basis.design(q) @ move[fine.parameter_slices[eid]]
+            expected = nearest_gauged(coarse, eid, q, change)
+            got = moved[coarse.parameter_slices[eid]]
+            assert got == pytest.approx(expected, abs=1e-9), eid
+            if wiggle == 0.0:  # a gauged cubic: both bases hold it, it arrives unchanged
+                values = coarse.functions[eid].basis.design(q) @ got
+                assert values == pytest.approx(change, abs=1e-9), eid
         for eid in SQUARENESS_IDS:
-            assert moved[coarse.parameter_slices[eid]] == pytest.approx(move[slices[eid]])
+            assert moved[coarse.parameter_slices[eid]] == pytest.approx(
+                move[fine.parameter_slices[eid]]
+            )
 
 
 def test_a_coarser_basis_that_leaves_a_bend_the_runs_agree_on_is_refused_and_said(

@@ -723,7 +723,7 @@ def _angle_spread(result, sid: str) -> float:  # type: ignore[no-untyped-def]
     """The stated standard uncertainty (µrad) of the angle between the pair of axes of ``sid``
     as :func:`squareness_errors` takes it: the squareness plus the least-squares slopes of the
     pair's two straightness functions with the kept effects folded into them — the squareness's
-    own where the plan identifies neither function. A surface's slice tilts the folded
+    own unless the plan identifies both functions. A surface's slice tilts the folded
     function, and its uncertainty (with its correlation to the squareness) is the angle's too."""
     identified = set(result.base.identifiability.identified_ids)
     (first, second), sign = SQUARENESS_PAIRS[sid]
