@@ -176,12 +176,11 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
             states = fold_states(stroke, eid[2], q)
             a, b = (states[:, "XYZ".index(axis)] for axis in effect.depends_on)
             value = value + effect.value(a, b)
-        model, std = _single_axis_model(result, eid, q)
+        model, spread = _single_axis_model(result, eid, q)
         if straightness:
             slopes[eid] = (_slope(value, q), _slope(model, q))
         difference = _gauged(model, q, straightness) - _gauged(value, q, straightness)
         functions[eid] = float(np.sqrt(np.mean(difference**2)))
-        spread = float(np.sqrt(np.mean(std**2)))
         if spread > 0:
             worst_ratio = max(worst_ratio, functions[eid] / spread)
     truth_squareness = {sid: value + rigid_squareness.get(sid, 0.0)
