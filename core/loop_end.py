@@ -574,18 +574,12 @@ def _shape_missed(
         square = float(np.mean(difference**2)) - expected
         if square <= 2.0 * spread:
             continue
-        null = gauge_null_space(
-            model.functions[eid].basis,
-            model.machine.reference(axis),
-            ERROR_INFO[eid].is_straightness,
-        )
-        design = model.functions[eid].basis.design(q) @ null
-        theta = np.linalg.lstsq(design, difference, rcond=None)[0]
-        shown = float(np.sqrt(np.mean((design @ theta) ** 2)))
+        coefficients = _fit_in_gauge(model, eid, q, difference)
+        shown = float(np.sqrt(np.mean((model.functions[eid].basis.design(q) @ coefficients) ** 2)))
         if shown <= 0.0:
             continue
         row = np.zeros(model.parameter_count)
-        row[model.parameter_slices[eid]] = null @ theta * np.sqrt(square) / shown
+        row[model.parameter_slices[eid]] = coefficients * np.sqrt(square) / shown
         rows.append(row)
         sizes[eid] = float(np.sqrt(square))
     return np.reshape(rows, (-1, model.parameter_count)), sizes
@@ -602,17 +596,23 @@ def _in_basis(moves: FloatArray, old: ErrorModel, new: ErrorModel) -> FloatArray
     out = np.zeros((len(moves), new.parameter_count))
     was, now = old.parameter_slices, new.parameter_slices
     for eid in AXIS_ERROR_IDS:
-        axis = str(ERROR_INFO[eid].axis)
-        low, high = old.machine.stroke(axis)
+        low, high = old.machine.stroke(str(ERROR_INFO[eid].axis))
         q = np.linspace(low, high, STROKE_POINTS)
         change = old.functions[eid].basis.design(q) @ moves[:, was[eid]].T
-        basis = new.functions[eid].basis
-        null = gauge_null_space(basis, new.machine.reference(axis), ERROR_INFO[eid].is_straightness)
-        theta = np.linalg.lstsq(basis.design(q) @ null, change, rcond=None)[0]
-        out[:, now[eid]] = (null @ theta).T
+        out[:, now[eid]] = _fit_in_gauge(new, eid, q, change).T
     for eid in SQUARENESS_IDS:
         out[:, now[eid]] = moves[:, was[eid]]
     return out
+
+
+def _fit_in_gauge(model: ErrorModel, eid: str, q: FloatArray, values: FloatArray) -> FloatArray:
+    """The coefficients of ``model``'s function ``eid`` nearest ``values`` at q (least squares;
+    one column per column of ``values``) among those its gauge admits: zero at the reference
+    position and, for a straightness, no least-squares slope over the stroke."""
+    basis = model.functions[eid].basis
+    axis = str(ERROR_INFO[eid].axis)
+    null = gauge_null_space(basis, model.machine.reference(axis), ERROR_INFO[eid].is_straightness)
+    return null @ np.linalg.lstsq(basis.design(q) @ null, values, rcond=None)[0]
 
 
 def _with_shape_doubt(

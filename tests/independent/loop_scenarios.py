@@ -692,9 +692,14 @@ def _gauge_design(design: np.ndarray, q: np.ndarray, straightness: bool) -> np.n
     removes taken out: a straightness's least-squares slope over q, then the value at the
     start."""
     if straightness:
-        centred = (q - q.mean()) / np.sum((q - q.mean()) ** 2)
-        design = design - np.outer(q, centred @ design)
+        design = design - np.outer(q, _slope_weights(q) @ design)
     return design - design[0]
+
+
+def _slope_weights(q: np.ndarray) -> np.ndarray:
+    """Weights w with w @ values the least-squares slope of values over q (:func:`_slope`)."""
+    centred = q - q.mean()
+    return centred / np.sum(centred**2)
 
 
 def expected_errors(result) -> dict[str, float]:  # type: ignore[no-untyped-def]
@@ -733,7 +738,7 @@ def _angle_spread(result, sid: str) -> float:  # type: ignore[no-untyped-def]
     if first in identified and second in identified:
         for eid in (first, second):
             q = _stroke_points(result.final.model, eid)
-            slope = (q - q.mean()) / np.sum((q - q.mean()) ** 2)
+            slope = _slope_weights(q)
             own, effects = _folded_designs(result, eid, q)
             ids.append(eid)
             weights.append(sign * 1000.0 * (slope @ own))
