@@ -19,10 +19,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .compensation.export_common import DEFAULT_MAX_CORRECTION_UM, ExportOptions
-from .effects import HigherOrder
 from .errors import ERROR_INFO, ErrorModel
 from .identify import Identification, UncertaintyBudget, parameters_report
-from .loop_source import LoopSource
+from .loop_source import LoopSource, parameter_map
 from .progress import CancelToken, ProgressCallback, check, report
 from .residuals import (
     BOTH_WAYS,
@@ -33,6 +32,7 @@ from .residuals import (
     LoopResult,
     close_loop,
 )
+from .squareness_map import GRID_PER_AXIS, squareness_map
 from .thermal import UNIT_SYMBOL
 from .userror import UserError
 
@@ -47,40 +47,10 @@ def refined_covariance(identification: Identification, refined: ErrorModel) -> F
     at the nodes; both are linear in the fitted unknowns, so the covariance propagates exactly
     (cross terms included) from the fit's covariance of all its unknowns.
     """
-    from .errors import AXIS_ERROR_IDS, SQUARENESS_IDS, NodeTableBasis
-    from .identify import Gauge
-
-    base = identification.model
-    if refined.parameter_count == base.parameter_count:
+    if refined.parameter_count == identification.model.parameter_count:
         return identification.covariance
-    gauge = Gauge.for_model(base)
-    system = identification.system
+    mapping = parameter_map(identification, refined)
     covariance_all = identification.normal_inverse * identification.sigma_scale**2
-    refinements = {
-        effect.error_id: (effect, block.columns)
-        for effect, block in zip(
-            identification.effects,
-            [b for b in system.blocks if b.kind == "effect"],
-            strict=True,
-        )
-        if isinstance(effect, HigherOrder)
-    }
-    base_slices = base.parameter_slices
-    rows = []
-    for eid in (*AXIS_ERROR_IDS, *SQUARENESS_IDS):
-        to_base = np.zeros((base_slices[eid].stop - base_slices[eid].start, system.size))
-        to_base[:, : gauge.size] = gauge.matrix[base_slices[eid]]
-        if eid not in refinements:
-            rows.append(to_base)
-            continue
-        effect, columns = refinements[eid]
-        table = refined.functions[eid].basis
-        assert isinstance(table, NodeTableBasis)
-        nodes = np.asarray(table.nodes_mm)
-        rows_eid = base.functions[eid].basis.design(nodes) @ to_base
-        rows_eid[:, columns] += effect.refinement_design(nodes)
-        rows.append(rows_eid)
-    mapping = np.vstack(rows)
     return np.asarray(mapping @ covariance_all @ mapping.T)
 
 
@@ -165,6 +135,9 @@ def calibrate(
         "outliers_dropped": imported.outliers_dropped,
     }
     result["volumetric_error_um"] = volumetric_summary(source)
+    result["squareness_over_volume"] = {
+        entry.squareness_id: entry.to_json() for entry in squareness_map(source)
+    }
     result |= loop.to_report()
     sensitivity_result = None
     if request.sensitivity:
@@ -347,6 +320,9 @@ def summary_table(result: Mapping[str, Any]) -> str:
             f"{k} max {v['max_abs']:.2f} / RMS {v['rms']:.2f}" for k, v in volumetric.items()
         )
         lines.append(f"volumetric error of the identified machine (µm, 25 mm grid): {cells}")
+    lines += _squareness_lines(
+        result.get("squareness_over_volume", {}), result["machine"]["tool_offset_mm"]
+    )
     lines.append("")
     labels = [step["effect"].get("label", step["effect"]["kind"]) for step in result["loop"]]
     width = max([42, *map(len, labels)])  # the label column: every label whole
@@ -450,6 +426,32 @@ def summary_table(result: Mapping[str, Any]) -> str:
             if r:
                 lines.append(f"  {name:<60} {r['X']:5.1f}  {r['Y']:5.1f}  {r['Z']:5.1f}")
     return "\n".join(lines)
+
+
+def _squareness_lines(
+    entries: Mapping[str, Mapping[str, Any]], tool_offset_mm: Sequence[float]
+) -> list[str]:
+    """Each squareness as the parameter and as the tool's paths make it over the volume."""
+    if not entries:
+        return []
+    n = GRID_PER_AXIS
+    out = [
+        "squareness (µrad): the model's parameter; the angle between the tool's paths (tool "
+        f"offset {_at(tool_offset_mm)}) through the centre of the measured volume ± standard "
+        f"uncertainty; lowest … highest over {n}×{n}×{n} places in it"
+    ]
+    for sid, e in entries.items():
+        tilted = f"; tilted by {', '.join(e['tilted_by'])}" if e["tilted_by"] else ""
+        out.append(
+            f"  {sid} {e['parameter_urad']:.2f}; {e['at_centre_urad']:.2f} ± "
+            f"{e['at_centre_std_urad']:.2f}; {e['lowest_urad']:.2f} at {_at(e['lowest_at_mm'])} … "
+            f"{e['highest_urad']:.2f} at {_at(e['highest_at_mm'])}{tilted}"
+        )
+    return out
+
+
+def _at(place: Sequence[float]) -> str:
+    return "(" + ", ".join(f"{v:g}" for v in place) + ") mm"
 
 
 def _short(parameters: Mapping[str, Any]) -> str:

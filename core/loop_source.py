@@ -7,8 +7,9 @@ from collections.abc import Mapping
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .effects import Effect, refined_model
-from .identify import Identification
+from .effects import Effect, HigherOrder, refined_model
+from .errors import AXIS_ERROR_IDS, SQUARENESS_IDS, ErrorModel, NodeTableBasis
+from .identify import Gauge, Identification
 from .kinematics import VolumetricModel
 from .machine import Machine
 
@@ -27,6 +28,7 @@ class LoopSource:
         measured_range_mm: Mapping[str, tuple[float, float]] | None = None,
     ) -> None:
         effects = tuple(e for e in identification.effects if isinstance(e, Effect))
+        self.identification = identification
         self.model = refined_model(identification.model, effects, identification.effect_parameters)
         self.machine: Machine = self.model.machine
         self.effects = tuple(zip(effects, identification.effect_parameters, strict=True))
@@ -45,3 +47,40 @@ class LoopSource:
         for effect, values in self.effects:
             e = e + effect.error_um(values, self.machine, q, a)
         return e
+
+
+def parameter_map(identification: Identification, refined: ErrorModel) -> FloatArray:
+    """The linear map (rows: ``refined``'s parameters; columns: every unknown of the fit, the
+    gauge's coordinates then the effects' values) from what ``identification`` fitted to
+    ``refined``, its model with the higher-order refinements folded in
+    (:func:`~volucal.core.effects.refined_model`). A refined function is a node table whose
+    values are the coarse function plus the refinement at the nodes: both are linear in the
+    fitted unknowns, so covariances propagate through it exactly, cross terms included."""
+    base = identification.model
+    gauge = Gauge.for_model(base)
+    system = identification.system
+    refinements = {
+        effect.error_id: (effect, block.columns)
+        for effect, block in zip(
+            identification.effects,
+            [b for b in system.blocks if b.kind == "effect"],
+            strict=True,
+        )
+        if isinstance(effect, HigherOrder)
+    }
+    base_slices = base.parameter_slices
+    rows = []
+    for eid in (*AXIS_ERROR_IDS, *SQUARENESS_IDS):
+        to_base = np.zeros((base_slices[eid].stop - base_slices[eid].start, system.size))
+        to_base[:, : gauge.size] = gauge.matrix[base_slices[eid]]
+        if eid not in refinements:
+            rows.append(to_base)
+            continue
+        effect, columns = refinements[eid]
+        table = refined.functions[eid].basis
+        assert isinstance(table, NodeTableBasis)
+        nodes = np.asarray(table.nodes_mm)
+        rows_eid = base.functions[eid].basis.design(nodes) @ to_base
+        rows_eid[:, columns] += effect.refinement_design(nodes)
+        rows.append(rows_eid)
+    return np.vstack(rows)
