@@ -8,7 +8,10 @@ draw is imported and run through ``close_loop`` with the shipped defaults and sc
 one, each function's RMS error against the truth (gauge removed, cycles, bumps and surfaces folded
 in) is divided by the RMS error its stated covariance predicts, and each squareness error by its
 stated standard uncertainty (that of the angle between its axes it is scored as: the
-squareness with the slopes of the pair's straightness functions, kept surfaces folded in).
+squareness with the slopes of the pair's straightness functions, kept surfaces folded in). The
+squareness between the tool's paths that volucal maps over the measured volume
+(core/squareness_map.py) is compared with the generator's own paths: at the volume's centre by
+its stated standard uncertainty, and over every place of the map in µrad.
 
 Honest bands give each quantity a mean square ratio over the draws of 1. A squareness's ratio is
 |z| of one Gaussian: beyond 2 in 4.6 % of draws, beyond 3 in 0.27 %; a function's RMS ratio
@@ -53,7 +56,7 @@ def _draw(job: tuple[int, int]) -> dict:
     from score_blind import run_blind
 
     seed, draw = job
-    outcome = run_blind(seed, noise_draw=draw)
+    outcome = run_blind(seed, noise_draw=draw, paths=True)
     ratios = {
         quantity: error / outcome.expected_error[quantity]
         for quantity, error in {**outcome.function_error, **outcome.squareness_error}.items()
@@ -67,6 +70,7 @@ def _draw(job: tuple[int, int]) -> dict:
         "noise_um": outcome.noise,
         "exact": set(outcome.expected) == set(outcome.kept),
         "ratios": ratios,
+        "paths": outcome.path_squareness,
         "loop_s": outcome.seconds,
     }
 
@@ -137,7 +141,32 @@ def _summary(draws: list[dict]) -> list[str]:
             f"the draws: median {np.median(squares):.2f}, above 2 in {int(np.sum(squares > 2))}, "
             f"largest {np.max(squares):.2f}"
         )
+    lines += _paths_summary([d for d in draws if d["exact"]])
     return lines
+
+
+def _paths_summary(draws: list[dict]) -> list[str]:
+    """The squareness between the tool's paths (core/squareness_map.py) against the generator's
+    paths: at the volume's centre by its stated standard uncertainty, and over the map's places
+    in µrad."""
+    ratios = np.asarray(
+        [error / std for d in draws for error, std, _ in d["paths"].values() if std > 0]
+    )
+    worst = np.asarray([w for d in draws for _, _, w in d["paths"].values()])
+    if not len(worst):
+        return []
+    tails = ", ".join(
+        f"beyond {limit:g}: {100 * np.mean(np.abs(ratios) > limit):.2f} %"
+        f" (Gaussian {100 * GAUSSIAN_TAIL[limit]:.2f} %)"
+        for limit in GAUSSIAN_TAIL
+    )
+    return [
+        f"squareness between the tool's paths at the volume's centre: {len(ratios)} ratios; "
+        f"RMS ratio {np.sqrt(np.mean(ratios**2)):.2f}; {tails}",
+        f"  largest error over the 125 places of each map (µrad): median {np.median(worst):.3f}, "
+        f"95th percentile {np.percentile(worst, 95):.3f}, largest {np.max(worst):.3f}; "
+        f"within 2 µrad in {int(np.sum(worst <= 2.0))} of {len(worst)}",
+    ]
 
 
 def main() -> int:

@@ -45,6 +45,8 @@ class SquarenessAtPlaces:
 
     squareness_id: str
     axes: tuple[str, str]
+    #: per axis the range (mm) the paths span and the grid covers
+    volume_mm: dict[str, tuple[float, float]]
     parameter_urad: float
     centre_mm: tuple[float, float, float]
     at_centre_urad: float
@@ -59,6 +61,7 @@ class SquarenessAtPlaces:
     def to_json(self) -> dict[str, object]:
         return {
             "axes": list(self.axes),
+            "volume_mm": {axis: list(span) for axis, span in self.volume_mm.items()},
             "parameter_urad": self.parameter_urad,
             "centre_mm": list(self.centre_mm),
             "at_centre_urad": self.at_centre_urad,
@@ -96,6 +99,7 @@ def squareness_map(source: LoopSource) -> tuple[SquarenessAtPlaces, ...]:
             SquarenessAtPlaces(
                 squareness_id=sid,
                 axes=(first, second),
+                volume_mm={axis: (float(low), float(high)) for axis, (low, high) in ranges.items()},
                 parameter_urad=float(fit.model.squareness_urad[sid]),
                 centre_mm=_place(centre),
                 at_centre_urad=at_centre,
@@ -156,9 +160,7 @@ def path_angle(source: LoopSource, squareness_id: str, place_mm: FloatArray) -> 
 
 
 def _ranges(source: LoopSource) -> dict[str, tuple[float, float]]:
-    return {
-        axis: source.measured_range_mm.get(axis, source.machine.stroke(axis)) for axis in AXES
-    }
+    return {axis: source.measured_range_mm.get(axis, source.machine.stroke(axis)) for axis in AXES}
 
 
 def _angle(

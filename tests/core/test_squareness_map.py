@@ -4,36 +4,22 @@ machine the independent generator (tests/blind) builds and measures with its own
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from volucal.core.cli import main
-from volucal.core.errors import SQUARENESS_IDS
-from volucal.core.io.plan import import_plan, load_plan
-from volucal.core.loop_source import LoopSource
-from volucal.core.resources import demo_plan
-from volucal.core.squareness_map import GRID_PER_AXIS, PATHS, path_angle
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "independent"))
 
-def _generator_angle(scenario, tool: np.ndarray, sid: str, place: np.ndarray) -> float:  # type: ignore[no-untyped-def]
-    """The angle between the true tool paths through ``place``, from the generator's own exact
-    chain and its surfaces: least-squares slopes fitted here with numpy.polyfit."""
-    first, second, sign = PATHS[sid]
-    total = 0.0
-    for along, towards in ((first, second), (second, first)):
-        low, high = scenario.machine.stroke_mm[along]
-        q = np.linspace(low, high, 101)
-        states = np.tile(place, (len(q), 1)).astype(float)
-        states[:, "XYZ".index(along)] = q
-        error, _ = scenario.machine.pose_error(states, tool)
-        for effect in scenario.effects:
-            if effect.kind == "cross_axis":
-                a, b = (states[:, "XYZ".index(axis)] for axis in effect.depends_on)
-                error[:, "XYZ".index(effect.axis)] += effect.value(a, b)
-        total += 1000.0 * np.polyfit(q, error[:, "XYZ".index(towards)], 1)[0]
-    return sign * total
+from score_blind import true_path_angle  # noqa: E402
+from volucal.core.cli import main  # noqa: E402
+from volucal.core.errors import SQUARENESS_IDS  # noqa: E402
+from volucal.core.io.plan import import_plan, load_plan  # noqa: E402
+from volucal.core.loop_source import LoopSource  # noqa: E402
+from volucal.core.resources import demo_plan  # noqa: E402
+from volucal.core.squareness_map import GRID_PER_AXIS, path_angle  # noqa: E402
 
 
 def test_the_squareness_between_the_tool_paths_follows_a_twisting_table_over_the_volume(
@@ -57,21 +43,23 @@ def test_the_squareness_between_the_tool_paths_follows_a_twisting_table_over_the
     scenario = build_scenario(590011)
     tool = np.asarray(truth["plan"]["tool_offset_mm"], float)
     for sid, entry in mapped.items():
+        ranges = {axis: tuple(entry["volume_mm"][axis]) for axis in "XYZ"}
         assert entry["parameter_urad"] == report["parameters"][sid]["value"][0]
         centre = np.asarray(entry["centre_mm"])
-        truth_centre = _generator_angle(scenario, tool, sid, centre)
+        truth_centre = true_path_angle(scenario, tool, sid, centre, ranges)
         assert abs(entry["at_centre_urad"] - truth_centre) <= 3.0 * entry["at_centre_std_urad"]
         # the places where it is lowest and highest read as the true paths there, within the
         # issue's 2 µrad bound for a squareness
         for key in ("lowest", "highest"):
             place = np.asarray(entry[f"{key}_at_mm"])
-            assert abs(entry[f"{key}_urad"] - _generator_angle(scenario, tool, sid, place)) <= 2.0
+            true = true_path_angle(scenario, tool, sid, place, ranges)
+            assert abs(entry[f"{key}_urad"] - true) <= 2.0
     twisted = mapped["EB0Z"]
     assert twisted["tilted_by"] == [surface[0]["label"]]
     assert mapped["EC0Y"]["tilted_by"] == [] and mapped["EA0Z"]["tilted_by"] == []
     # the twist is real: over the volume the angle spans far more than its uncertainty
     assert twisted["highest_urad"] - twisted["lowest_urad"] > 40.0
-    assert "squareness (µrad): the model's parameter; between the tool's paths" in out
+    assert "squareness (µrad): the model's parameter; the angle between the tool's paths" in out
     assert f"EB0Z {twisted['parameter_urad']:.2f}; {twisted['at_centre_urad']:.2f} ± " in out
     assert f"tilted by {surface[0]['label']}" in out
 
@@ -94,7 +82,9 @@ def test_every_place_of_the_grid_reads_as_the_true_paths_there(tmp_path: Path) -
     ).reshape(-1, 3)
     for sid in SQUARENESS_IDS:
         misses = [
-            path_angle(source, sid, p) - _generator_angle(scenario, tool, sid, p) for p in places
+            path_angle(source, sid, p)
+            - true_path_angle(scenario, tool, sid, p, source.measured_range_mm)
+            for p in places
         ]
         assert np.max(np.abs(misses)) <= 2.0, sid
 

@@ -88,8 +88,9 @@ def _product(effect: fx.CrossAxis, k: int, m: int, c: float) -> fx.CrossAxis:
     """c·P_k(u)·P_m(v) as a surface of the generator (its monomials)."""
     pu = legendre.leg2poly([0] * k + [1])
     pv = legendre.leg2poly([0] * m + [1])
-    coefficients = {f"{i},{j}": c * a * b for i, a in enumerate(pu) for j, b in enumerate(pv)
-                    if abs(a * b) > 0}
+    coefficients = {
+        f"{i},{j}": c * a * b for i, a in enumerate(pu) for j, b in enumerate(pv) if abs(a * b) > 0
+    }
     return replace(effect, coefficients=coefficients)
 
 
@@ -112,8 +113,9 @@ def rigid_share(
     if not surfaces:
         return None, {}, {}, []
     projector = RigidProjector(scenario.plan, scenario.session.lines)
-    baseline = {line.spec.name: measure_line(scenario.machine, [], line)
-                for line in scenario.session.lines}
+    baseline = {
+        line.spec.name: measure_line(scenario.machine, [], line) for line in scenario.session.lines
+    }
     functions: dict[str, np.ndarray] = {}
     squareness: dict[str, float] = {}
     remaining = []
@@ -123,8 +125,11 @@ def rigid_share(
             if k == 0 or m == 0 or abs(c) < 1e-12:
                 continue
             term = _product(effect, k, m, 1.0)
-            diffs = {line.spec.name: measure_line(scenario.machine, [term], line)
-                     - baseline[line.spec.name] for line in scenario.session.lines}
+            diffs = {
+                line.spec.name: measure_line(scenario.machine, [term], line)
+                - baseline[line.spec.name]
+                for line in scenario.session.lines
+            }
             fitted, square, share = projector.fit(diffs)
             if share >= RIGID_SHARE:
                 continue
@@ -183,8 +188,10 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
         functions[eid] = float(np.sqrt(np.mean(difference**2)))
         if spread > 0:
             worst_ratio = max(worst_ratio, functions[eid] / spread)
-    truth_squareness = {sid: value + rigid_squareness.get(sid, 0.0)
-                        for sid, value in truth["machine"]["squareness_urad"].items()}
+    truth_squareness = {
+        sid: value + rigid_squareness.get(sid, 0.0)
+        for sid, value in truth["machine"]["squareness_urad"].items()
+    }
     squareness = squareness_errors(
         truth_squareness,
         result.final.model.squareness_urad,
@@ -194,9 +201,10 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
     return functions, squareness, max(worst_ratio, squareness_ratio(result, squareness))
 
 
-def run_blind(seed: int, noise_draw: int = 0) -> Outcome:
+def run_blind(seed: int, noise_draw: int = 0, paths: bool = False) -> Outcome:
     """Write the blind scenario ``seed`` (with ``noise_draw``, its readings' noise drawn anew:
-    :func:`scenarios.build_scenario`), import it with volucal, close the loop, score."""
+    :func:`scenarios.build_scenario`), import it with volucal, close the loop, score; with
+    ``paths``, also the squareness between the tool's paths (:func:`path_squareness`)."""
     from volucal.core.io.plan import import_plan, load_plan
     from volucal.core.residuals import close_loop
 
@@ -253,4 +261,83 @@ def run_blind(seed: int, noise_draw: int = 0) -> Outcome:
         ),
         report.get("basis", {}).get("spacing_mm"),
         expected_errors(result),
+        path_squareness(seed, truth, result) if paths else {},
     )
+
+
+#: The squareness ids with their first and second axis, and the sign that makes the angle
+#: between the two paths the squareness on a machine with no other error (ISO 230-1: EC0Y turns
+#: Y about +Z, EB0Z turns Z about +Y, EA0Z turns Z about +X), written from the generator's
+#: chain (:meth:`tests.blind.machine.Machine.pose_error`).
+PATH_PAIRS = {"EC0Y": ("X", "Y", -1.0), "EB0Z": ("X", "Z", 1.0), "EA0Z": ("Y", "Z", -1.0)}
+
+
+def true_tool_error(scenario: Scenario, tool_mm: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """The generator's tool error (µm, (N, 3)) at machine ``states`` at the session's first
+    moment, the mean of both approach directions: its exact chain with every effect's hooks as
+    :func:`tests.blind.laser.measure_line` applies them, without any line's set-up."""
+    n = len(states)
+    zeros = np.zeros(n)
+    total = np.zeros((n, 3))
+    for sign in (1.0, -1.0):
+        readings = fx.Readings(
+            "path", "linear", states, zeros, np.full((n, 3), sign), zeros, zeros, zeros
+        )
+        deltas: dict[str, np.ndarray] = {}
+        extra = np.zeros((n, 3))
+        for effect in scenario.effects:
+            for axis, delta in effect.axis_delta(readings).items():
+                deltas[axis] = deltas.get(axis, 0.0) + delta
+            added = effect.volumetric(readings)
+            if added is not None:
+                extra = extra + added
+        error, _ = scenario.machine.pose_error(states, tool_mm, deltas)
+        total += 0.5 * (error + extra)
+    return total
+
+
+def true_path_angle(
+    scenario: Scenario,
+    tool_mm: np.ndarray,
+    squareness_id: str,
+    place_mm: np.ndarray,
+    ranges_mm: dict[str, tuple[float, float]],
+) -> float:
+    """The angle (µrad) between the true tool paths along the two axes of ``squareness_id``
+    through ``place_mm``, each over its range in ``ranges_mm``: least-squares slopes of
+    :func:`true_tool_error` on 101 points (numpy.polyfit)."""
+    first, second, sign = PATH_PAIRS[squareness_id]
+    total = 0.0
+    for along, towards in ((first, second), (second, first)):
+        q = np.linspace(*ranges_mm[along], 101)
+        states = np.tile(np.asarray(place_mm, float), (len(q), 1))
+        states[:, "XYZ".index(along)] = q
+        error = true_tool_error(scenario, tool_mm, states)
+        total += 1000.0 * np.polyfit(q, error[:, "XYZ".index(towards)], 1)[0]
+    return sign * total
+
+
+def path_squareness(seed: int, truth: dict, result) -> dict[str, tuple[float, float, float]]:  # type: ignore[no-untyped-def]
+    """Per squareness volucal maps over the measured volume (core/squareness_map.py): its error
+    at the volume's centre against the generator's paths (µrad), its stated standard
+    uncertainty there, and its largest error over every place of its grid."""
+    from volucal.core.calibrate import measured_range
+    from volucal.core.loop_source import LoopSource
+    from volucal.core.squareness_map import GRID_PER_AXIS, path_angle, squareness_map
+
+    source = LoopSource(result.final, measured_range(result.final))
+    scenario = build_scenario(seed)
+    tool = np.asarray(truth["plan"]["tool_offset_mm"], float)
+    out = {}
+    for entry in squareness_map(source):
+        sid, ranges = entry.squareness_id, entry.volume_mm
+        axes = [np.linspace(*ranges[axis], GRID_PER_AXIS) for axis in "XYZ"]
+        places = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        centre = np.asarray(entry.centre_mm)
+        error = entry.at_centre_urad - true_path_angle(scenario, tool, sid, centre, ranges)
+        worst = max(
+            abs(path_angle(source, sid, p) - true_path_angle(scenario, tool, sid, p, ranges))
+            for p in places
+        )
+        out[sid] = (float(error), entry.at_centre_std_urad, float(worst))
+    return out
