@@ -484,7 +484,12 @@ def _uncorroborated(
     warm-up (blind 50121, direct plan: X warming by 24.9 ppm with τ 24 min; only x_linear, the
     first line along X, shows it). A beam that drifts during that very line reads the same, and
     the drift's kept τ then has a wide range (report.json ``time_constant_range_s``,
-    :func:`_time_constant_doubts`).
+    :func:`_time_constant_doubts`). The drift as fitted must have settled, though: where the
+    next linear line along its axis starts less than :data:`SETTLED_TAUS` time constants after
+    the session's first reading, the later lines would read a scale still on its way, and
+    reading nothing of it they do not bear the warm-up out — a course in time within the one
+    line (blind 61139, direct plan: an X scale oscillating with a 99 min period, of which
+    x_linear's 25 min read as a drift of τ 365 min with the next line along X at 420 min).
     """
     drift_in_time = isinstance(effect, ThermalDrift) and effect.mode == "time"
     if effect.kind not in NEEDS_TWO_LINES and not drift_in_time:
@@ -493,9 +498,11 @@ def _uncorroborated(
     if showing.size >= 2:
         return None
     if (
-        drift_in_time
+        isinstance(effect, ThermalDrift)
+        and drift_in_time
         and showing.size == 1
         and int(showing[0]) == _earliest_along(effect.axis, readings)
+        and _settled_before_the_next(effect, int(showing[0]), readings)
     ):
         return None
     where = readings.lines[int(np.argmax(energy))].name
@@ -506,19 +513,45 @@ def _uncorroborated(
     )
 
 
-def _earliest_along(axis: str | None, readings: Readings) -> int | None:
-    """The linear line that moves ``axis`` and was started first, or None when none does."""
-    if axis is None:
-        return None
+#: A drift shown by the earliest line along its axis alone has settled when the next linear
+#: line along that axis starts this many time constants or more after the session's first
+#: reading (e⁻³: 95 % of its way).
+SETTLED_TAUS = 3.0
+
+
+def _linear_lines_along(axis: str, readings: Readings) -> list[int]:
     k = AXIS_INDEX[axis]
-    moving = [
+    return [
         i
         for i, line in enumerate(readings.lines)
         if line.spec.quantity == "linear" and abs(line.spec.direction[k]) > 1e-6
     ]
+
+
+def _started(index: int, readings: Readings) -> float:
+    return float(readings.time_s[readings.line == index].min())
+
+
+def _earliest_along(axis: str | None, readings: Readings) -> int | None:
+    """The linear line that moves ``axis`` and was started first, or None when none does."""
+    if axis is None:
+        return None
+    moving = _linear_lines_along(axis, readings)
     if not moving:
         return None
-    return min(moving, key=lambda i: float(readings.time_s[readings.line == i].min()))
+    return min(moving, key=lambda i: _started(i, readings))
+
+
+def _settled_before_the_next(drift: ThermalDrift, earliest: int, readings: Readings) -> bool:
+    """Whether ``drift``, shown by the ``earliest`` line along its axis alone, has run
+    :data:`SETTLED_TAUS` time constants before the next linear line along that axis starts
+    (true where no other line moves the axis: none could read it)."""
+    later = [
+        _started(i, readings)
+        for i in _linear_lines_along(drift.axis, readings)
+        if i != earliest and _started(i, readings) > _started(earliest, readings)
+    ]
+    return not later or min(later) >= SETTLED_TAUS * drift.time_constant_s
 
 
 def _held_out_gain(
