@@ -86,14 +86,14 @@ def squareness_map(source: LoopSource) -> tuple[SquarenessAtPlaces, ...]:
     fit = source.identification
     ranges = _ranges(source)
     out = []
-    for sid, (first, second, sign) in PATHS.items():
+    for sid, (first, second, _) in PATHS.items():
         pair = (f"E{second}{first}", f"E{first}{second}")
         if not all(fit.is_identified(eid) for eid in (sid, *pair)):
             continue
         places = _grid(ranges)
-        angles = np.array([_angle(source, ranges, p, first, second, sign) for p in places])
+        angles = np.array([_angle(source, ranges, p, sid) for p in places])
         centre = np.array([0.5 * sum(ranges[axis]) for axis in AXES])
-        at_centre = _angle(source, ranges, centre, first, second, sign)
+        at_centre = _angle(source, ranges, centre, sid)
         low, high = int(np.argmin(angles)), int(np.argmax(angles))
         out.append(
             SquarenessAtPlaces(
@@ -103,12 +103,12 @@ def squareness_map(source: LoopSource) -> tuple[SquarenessAtPlaces, ...]:
                 parameter_urad=float(fit.model.squareness_urad[sid]),
                 centre_mm=_place(centre),
                 at_centre_urad=at_centre,
-                at_centre_std_urad=_std_at(source, ranges, centre, first, second, sign),
+                at_centre_std_urad=_std_at(source, ranges, centre, sid),
                 lowest_urad=float(angles[low]),
                 lowest_at_mm=_place(places[low]),
                 highest_urad=float(angles[high]),
                 highest_at_mm=_place(places[high]),
-                tilted_by=_tilting(source, ranges, places, first, second),
+                tilted_by=_tilting(source, ranges, places, sid),
             )
         )
     return tuple(out)
@@ -139,10 +139,11 @@ def _slope_weights(q: FloatArray) -> FloatArray:
 
 
 def _legs(
-    ranges: dict[str, tuple[float, float]], place: FloatArray, first: str, second: str
+    ranges: dict[str, tuple[float, float]], place: FloatArray, sid: str
 ) -> list[tuple[FloatArray, FloatArray, int]]:
-    """Both paths through ``place``: their states, slope weights and the component of E whose
-    slope along the path tilts it towards the other axis."""
+    """Both paths of ``sid``'s axes through ``place``: their states, slope weights and the
+    component of E whose slope along the path tilts it towards the other axis."""
+    first, second, _ = PATHS[sid]
     legs = []
     for along, towards in ((first, second), (second, first)):
         states = _path(ranges, place, along)
@@ -155,8 +156,7 @@ def path_angle(source: LoopSource, squareness_id: str, place_mm: FloatArray) -> 
     """The angle (µrad) between the tool point's least-squares paths along the two axes of
     ``squareness_id`` through ``place_mm``, each over its axis' measured range, in the sign of
     that squareness (:data:`PATHS`)."""
-    first, second, sign = PATHS[squareness_id]
-    return _angle(source, _ranges(source), np.asarray(place_mm, float), first, second, sign)
+    return _angle(source, _ranges(source), np.asarray(place_mm, float), squareness_id)
 
 
 def _ranges(source: LoopSource) -> dict[str, tuple[float, float]]:
@@ -164,33 +164,24 @@ def _ranges(source: LoopSource) -> dict[str, tuple[float, float]]:
 
 
 def _angle(
-    source: LoopSource,
-    ranges: dict[str, tuple[float, float]],
-    place: FloatArray,
-    first: str,
-    second: str,
-    sign: float,
+    source: LoopSource, ranges: dict[str, tuple[float, float]], place: FloatArray, sid: str
 ) -> float:
     total = 0.0
-    for states, weights, component in _legs(ranges, place, first, second):
+    for states, weights, component in _legs(ranges, place, sid):
         total += float(weights @ source.error_um(states)[:, component])
-    return sign * total
+    return PATHS[sid][2] * total
 
 
 def _std_at(
-    source: LoopSource,
-    ranges: dict[str, tuple[float, float]],
-    place: FloatArray,
-    first: str,
-    second: str,
-    sign: float,
+    source: LoopSource, ranges: dict[str, tuple[float, float]], place: FloatArray, sid: str
 ) -> float:
     fit = source.identification
     gradient = np.zeros(fit.system.size)
     mapping = parameter_map(fit, source.model)
     columns = [b.columns for b in fit.system.blocks if b.kind == "effect"]
     tool = source.machine.tool_offset_mm
-    for states, weights, component in _legs(ranges, place, first, second):
+    sign = PATHS[sid][2]
+    for states, weights, component in _legs(ranges, place, sid):
         design = jacobian(source.model, states, tool)[:, component, :]
         gradient += sign * (mapping.T @ (weights @ design))
         for effect, values, at in zip(fit.effects, fit.effect_parameters, columns, strict=True):
@@ -207,18 +198,14 @@ def _std_at(
 
 
 def _tilting(
-    source: LoopSource,
-    ranges: dict[str, tuple[float, float]],
-    places: FloatArray,
-    first: str,
-    second: str,
+    source: LoopSource, ranges: dict[str, tuple[float, float]], places: FloatArray, sid: str
 ) -> tuple[str, ...]:
     """The kept machine effects whose error tilts either path somewhere on the grid by more
     than 1e-3 µrad."""
     labels = []
     for effect, values in source.effects:
         for place in places:
-            legs = _legs(ranges, place, first, second)
+            legs = _legs(ranges, place, sid)
             tilt = sum(
                 abs(float(w @ effect.error_um(values, source.machine, s)[:, c])) for s, w, c in legs
             )

@@ -2,32 +2,18 @@
 the blind generator (tests/blind): measured there, the machine reads as the surface of its own
 place and not as the one the loop kept."""
 
+import sys
 import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests.blind import effects as blind_effects
-from tests.blind.scenarios import build_scenario, write_scenario
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "independent"))
 
+from score_blind import true_tool_error  # noqa: E402
 
-def _machine_reads(scenario, q: np.ndarray, tool: np.ndarray) -> np.ndarray:  # type: ignore[no-untyped-def]
-    """The generator's machine at positions ``q`` (no approach, at the session's start): its
-    volumetric error (µm), the effects that act in its chain included."""
-    n = len(q)
-    zeros = np.zeros(n)
-    readings = blind_effects.Readings(
-        "new", "linear", q, q[:, 0], np.zeros((n, 3)), zeros, zeros.astype(int), zeros.astype(int)
-    )
-    extra: dict[str, np.ndarray] = {}
-    volumetric = np.zeros((n, 3))
-    for effect in scenario.effects:
-        for axis, delta in effect.axis_delta(readings).items():
-            extra[axis] = extra.get(axis, 0.0) + delta
-        added = effect.volumetric(readings)
-        if added is not None:
-            volumetric += added
-    return scenario.machine.pose_error(q, tool, extra or None)[0] + volumetric
+from tests.blind.scenarios import build_scenario, write_scenario  # noqa: E402
 
 
 def _left(difference: np.ndarray, travel: np.ndarray) -> float:
@@ -99,7 +85,7 @@ def test_the_lines_named_to_tell_rival_surfaces_apart_read_the_machine_s_own(see
         along = [s for s in specs if abs(s.direction[k]) > 1 - 1e-6]
         tool = np.asarray((along or specs)[0].reflector_mm, dtype=float)
         j = AXIS_INDEX[line["reads"]]
-        reads = _machine_reads(scenario, q, tool)[:, j]
+        reads = true_tool_error(scenario, tool, q)[:, j]
         kept_reads = LoopSource(result.final).error_um(q, None, tool)[:, j]
         right_reads = LoopSource(right).error_um(q, None, tool)[:, j]
         # the machine, measured on the named line, reads as the surface of its own place ...

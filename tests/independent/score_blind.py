@@ -274,26 +274,24 @@ PATH_PAIRS = {"EC0Y": ("X", "Y", -1.0), "EB0Z": ("X", "Z", 1.0), "EA0Z": ("Y", "
 
 def true_tool_error(scenario: Scenario, tool_mm: np.ndarray, states: np.ndarray) -> np.ndarray:
     """The generator's tool error (µm, (N, 3)) at machine ``states`` at the session's first
-    moment, the mean of both approach directions: its exact chain with every effect's hooks as
-    :func:`tests.blind.laser.measure_line` applies them, without any line's set-up."""
+    moment, no approach direction (a reversal's halves cancel): its exact chain with every
+    effect's hooks as :func:`tests.blind.laser.measure_line` applies them, without any line's
+    set-up."""
     n = len(states)
     zeros = np.zeros(n)
-    total = np.zeros((n, 3))
-    for sign in (1.0, -1.0):
-        readings = fx.Readings(
-            "path", "linear", states, zeros, np.full((n, 3), sign), zeros, zeros, zeros
-        )
-        deltas: dict[str, np.ndarray] = {}
-        extra = np.zeros((n, 3))
-        for effect in scenario.effects:
-            for axis, delta in effect.axis_delta(readings).items():
-                deltas[axis] = deltas.get(axis, 0.0) + delta
-            added = effect.volumetric(readings)
-            if added is not None:
-                extra = extra + added
-        error, _ = scenario.machine.pose_error(states, tool_mm, deltas)
-        total += 0.5 * (error + extra)
-    return total
+    readings = fx.Readings(
+        "path", "linear", states, zeros, np.zeros((n, 3)), zeros, zeros.astype(int),
+        zeros.astype(int),
+    )
+    deltas: dict[str, np.ndarray] = {}
+    extra = np.zeros((n, 3))
+    for effect in scenario.effects:
+        for axis, delta in effect.axis_delta(readings).items():
+            deltas[axis] = deltas.get(axis, 0.0) + delta
+        added = effect.volumetric(readings)
+        if added is not None:
+            extra = extra + added
+    return scenario.machine.pose_error(states, tool_mm, deltas or None)[0] + extra
 
 
 def true_path_angle(
