@@ -78,11 +78,11 @@ def squareness_map(source: LoopSource) -> tuple[SquarenessAtPlaces, ...]:
     """Per squareness error the plan identifies, with both straightness functions of its pair
     of axes: the angle between the tool point's least-squares paths along the two axes through
     each place of a :data:`GRID_PER_AXIS`-per-axis grid over the measured volume
-    (``source.measured_range_mm``, else the strokes), at the model's tool offset, both approach
-    directions averaged; its value and standard uncertainty at the grid's centre, and where it
-    is lowest and highest. The uncertainty is first order: the angle's gradient over every
-    unknown of the fit (the 21 errors' gauge coordinates and the kept effects' values) through
-    their joint covariance."""
+    (``source.measured_range_mm``, else the strokes), at the model's tool offset, with no
+    approach direction (a reversal's halves cancel); its value and standard uncertainty at the
+    grid's centre, and where it is lowest and highest. The uncertainty is first order: the
+    angle's gradient over every unknown of the fit (the 21 errors' gauge coordinates and the
+    kept effects' values) through their joint covariance."""
     fit = source.identification
     ranges = _ranges(source)
     out = []
@@ -99,7 +99,7 @@ def squareness_map(source: LoopSource) -> tuple[SquarenessAtPlaces, ...]:
             SquarenessAtPlaces(
                 squareness_id=sid,
                 axes=(first, second),
-                volume_mm={axis: (float(low), float(high)) for axis, (low, high) in ranges.items()},
+                volume_mm={axis: (float(a), float(b)) for axis, (a, b) in ranges.items()},
                 parameter_urad=float(fit.model.squareness_urad[sid]),
                 centre_mm=_place(centre),
                 at_centre_urad=at_centre,
