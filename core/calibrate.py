@@ -320,9 +320,7 @@ def summary_table(result: Mapping[str, Any]) -> str:
             f"{k} max {v['max_abs']:.2f} / RMS {v['rms']:.2f}" for k, v in volumetric.items()
         )
         lines.append(f"volumetric error of the identified machine (µm, 25 mm grid): {cells}")
-    lines += _squareness_lines(
-        result.get("squareness_over_volume", {}), result["machine"]["tool_offset_mm"]
-    )
+    lines += _squareness_lines(result)
     lines.append("")
     labels = [step["effect"].get("label", step["effect"]["kind"]) for step in result["loop"]]
     width = max([42, *map(len, labels)])  # the label column: every label whole
@@ -428,17 +426,17 @@ def summary_table(result: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _squareness_lines(
-    entries: Mapping[str, Mapping[str, Any]], tool_offset_mm: Sequence[float]
-) -> list[str]:
-    """Each squareness as the parameter and as the tool's paths make it over the volume."""
+def _squareness_lines(result: Mapping[str, Any]) -> list[str]:
+    """Each squareness as the parameter and as the tool's paths make it over the volume (none
+    for a result without the map, e.g. a loop's alone)."""
+    entries = result.get("squareness_over_volume")
     if not entries:
         return []
     n = GRID_PER_AXIS
     out = [
         "squareness (µrad): the model's parameter; the angle between the tool's paths (tool "
-        f"offset {_at(tool_offset_mm)}) through the centre of the measured volume ± standard "
-        f"uncertainty; lowest … highest over {n}×{n}×{n} places in it"
+        f"offset {_at(result['machine']['tool_offset_mm'])}) through the centre of the measured "
+        f"volume ± standard uncertainty; lowest … highest over {n}×{n}×{n} places in it"
     ]
     for sid, e in entries.items():
         tilted = f"; tilted by {', '.join(e['tilted_by'])}" if e["tilted_by"] else ""
