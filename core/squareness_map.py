@@ -99,7 +99,7 @@ def squareness_map(source: LoopSource) -> tuple[SquarenessAtPlaces, ...]:
             SquarenessAtPlaces(
                 squareness_id=sid,
                 axes=(first, second),
-                volume_mm={axis: (float(a), float(b)) for axis, (a, b) in ranges.items()},
+                volume_mm={axis: (_mm(a), _mm(b)) for axis, (a, b) in ranges.items()},
                 parameter_urad=float(fit.model.squareness_urad[sid]),
                 centre_mm=_place(centre),
                 at_centre_urad=at_centre,
@@ -119,9 +119,13 @@ def _grid(ranges: dict[str, tuple[float, float]]) -> FloatArray:
     return np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], axis=-1)
 
 
-def _place(p: FloatArray) -> tuple[float, float, float]:
+def _mm(value: float) -> float:
     # a range's end read back from the readings can be −6e-14 mm: reported as the place it is
-    x, y, z = (round(float(v), 6) + 0.0 for v in p)
+    return round(float(value), 6) + 0.0
+
+
+def _place(p: FloatArray) -> tuple[float, float, float]:
+    x, y, z = (_mm(v) for v in p)
     return (x, y, z)
 
 
