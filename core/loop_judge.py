@@ -546,11 +546,9 @@ def _settled_before_the_next(drift: ThermalDrift, earliest: int, readings: Readi
     """Whether ``drift``, shown by the ``earliest`` line along its axis alone, has run
     :data:`SETTLED_TAUS` time constants before the next linear line along that axis starts
     (true where no other line moves the axis: none could read it)."""
-    later = [
-        _started(i, readings)
-        for i in _linear_lines_along(drift.axis, readings)
-        if i != earliest and _started(i, readings) > _started(earliest, readings)
-    ]
+    first = _started(earliest, readings)
+    starts = [_started(i, readings) for i in _linear_lines_along(drift.axis, readings)]
+    later = [t for t in starts if t > first]
     return not later or min(later) >= SETTLED_TAUS * drift.time_constant_s
 
 

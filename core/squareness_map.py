@@ -85,14 +85,15 @@ def squareness_map(source: LoopSource) -> tuple[SquarenessAtPlaces, ...]:
     kept effects' values) through their joint covariance."""
     fit = source.identification
     ranges = _ranges(source)
+    places = _grid(ranges)
+    centre = np.array([0.5 * sum(ranges[axis]) for axis in AXES])
+    mapping = parameter_map(fit, source.model)
     out = []
     for sid, (first, second, _) in PATHS.items():
         pair = (f"E{second}{first}", f"E{first}{second}")
         if not all(fit.is_identified(eid) for eid in (sid, *pair)):
             continue
-        places = _grid(ranges)
         angles = np.array([_angle(source, ranges, p, sid) for p in places])
-        centre = np.array([0.5 * sum(ranges[axis]) for axis in AXES])
         at_centre = _angle(source, ranges, centre, sid)
         low, high = int(np.argmin(angles)), int(np.argmax(angles))
         out.append(
@@ -103,7 +104,7 @@ def squareness_map(source: LoopSource) -> tuple[SquarenessAtPlaces, ...]:
                 parameter_urad=float(fit.model.squareness_urad[sid]),
                 centre_mm=_place(centre),
                 at_centre_urad=at_centre,
-                at_centre_std_urad=_std_at(source, ranges, centre, sid),
+                at_centre_std_urad=_std_at(source, mapping, ranges, centre, sid),
                 lowest_urad=float(angles[low]),
                 lowest_at_mm=_place(places[low]),
                 highest_urad=float(angles[high]),
@@ -177,11 +178,16 @@ def _angle(
 
 
 def _std_at(
-    source: LoopSource, ranges: dict[str, tuple[float, float]], place: FloatArray, sid: str
+    source: LoopSource,
+    mapping: FloatArray,
+    ranges: dict[str, tuple[float, float]],
+    place: FloatArray,
+    sid: str,
 ) -> float:
+    """The angle's first-order standard uncertainty at ``place``; ``mapping`` takes the fit's
+    unknowns to the refined model's parameters (:func:`parameter_map`)."""
     fit = source.identification
     gradient = np.zeros(fit.system.size)
-    mapping = parameter_map(fit, source.model)
     columns = [b.columns for b in fit.system.blocks if b.kind == "effect"]
     tool = source.machine.tool_offset_mm
     sign = PATHS[sid][2]
