@@ -11,7 +11,8 @@ stated standard uncertainty (that of the angle between its axes it is scored as:
 squareness with the slopes of the pair's straightness functions, kept surfaces folded in). The
 squareness between the tool's paths that volucal maps over the measured volume
 (core/squareness_map.py) is compared with the generator's own paths: at the volume's centre by
-its stated standard uncertainty, and over every place of the map in µrad.
+the standard uncertainty stated there, at every place of the map the same way, and over the
+map's places in µrad.
 
 Honest bands give each quantity a mean square ratio over the draws of 1. A squareness's ratio is
 |z| of one Gaussian: beyond 2 in 4.6 % of draws, beyond 3 in 0.27 %; a function's RMS ratio
@@ -147,26 +148,34 @@ def _summary(draws: list[dict]) -> list[str]:
 
 def _paths_summary(draws: list[dict]) -> list[str]:
     """The squareness between the tool's paths (core/squareness_map.py) against the generator's
-    paths: at the volume's centre by its stated standard uncertainty, and over the map's places
-    in µrad."""
-    ratios = np.asarray(
-        [error / std for d in draws for error, std, _ in d["paths"].values() if std > 0]
-    )
-    worst = np.asarray([w for d in draws for _, _, w in d["paths"].values()])
-    if not len(worst):
+    paths: at the volume's centre and at every place of the map by the standard uncertainty
+    stated there, and over the map's places in µrad."""
+    maps = [entry for d in draws for entry in d["paths"].values()]
+    if not maps:
         return []
+    centre = np.asarray([error / std for error, std, _, _ in maps if std > 0])
+    places = np.concatenate([z for _, _, _, z in maps])
+    worst_z = np.asarray([np.max(np.abs(z)) for _, _, _, z in maps])
+    worst = np.asarray([w for _, _, w, _ in maps])
+    return [
+        f"squareness between the tool's paths at the volume's centre: {len(centre)} ratios; "
+        f"{_ratio_line(centre)}",
+        f"  at every place of the {len(maps)} maps: {len(places)} ratios; {_ratio_line(places)}; "
+        f"largest |ratio| per map: median {np.median(worst_z):.2f}, 95th percentile "
+        f"{np.percentile(worst_z, 95):.2f}, largest {np.max(worst_z):.2f}",
+        f"  largest error over the 125 places of each map (µrad): median {np.median(worst):.3f}, "
+        f"95th percentile {np.percentile(worst, 95):.3f}, largest {np.max(worst):.3f}; "
+        f"within 2 µrad in {int(np.sum(worst <= 2.0))} of {len(worst)}",
+    ]
+
+
+def _ratio_line(ratios: np.ndarray) -> str:
     tails = ", ".join(
         f"beyond {limit:g}: {100 * np.mean(np.abs(ratios) > limit):.2f} %"
         f" (Gaussian {100 * GAUSSIAN_TAIL[limit]:.2f} %)"
         for limit in GAUSSIAN_TAIL
     )
-    return [
-        f"squareness between the tool's paths at the volume's centre: {len(ratios)} ratios; "
-        f"RMS ratio {np.sqrt(np.mean(ratios**2)):.2f}; {tails}",
-        f"  largest error over the 125 places of each map (µrad): median {np.median(worst):.3f}, "
-        f"95th percentile {np.percentile(worst, 95):.3f}, largest {np.max(worst):.3f}; "
-        f"within 2 µrad in {int(np.sum(worst <= 2.0))} of {len(worst)}",
-    ]
+    return f"RMS ratio {np.sqrt(np.mean(ratios**2)):.2f}; {tails}"
 
 
 def main() -> int:

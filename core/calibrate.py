@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from .compensation.export_common import DEFAULT_MAX_CORRECTION_UM, ExportOptions
 from .errors import ERROR_INFO, ErrorModel
 from .identify import Identification, UncertaintyBudget, parameters_report
-from .loop_source import LoopSource, parameter_map
+from .loop_source import LoopSource, measured_range, parameter_map
 from .progress import CancelToken, ProgressCallback, check, report
 from .residuals import (
     BOTH_WAYS,
@@ -32,7 +32,7 @@ from .residuals import (
     LoopResult,
     close_loop,
 )
-from .squareness_map import GRID_PER_AXIS, squareness_map
+from .squareness_map import GRID_PER_AXIS, squareness_report
 from .thermal import UNIT_SYMBOL
 from .userror import UserError
 
@@ -52,12 +52,6 @@ def refined_covariance(identification: Identification, refined: ErrorModel) -> F
     mapping = parameter_map(identification, refined)
     covariance_all = identification.normal_inverse * identification.sigma_scale**2
     return np.asarray(mapping @ covariance_all @ mapping.T)
-
-
-def measured_range(identification: Identification) -> dict[str, tuple[float, float]]:
-    """Per axis, the range of positions the measured lines covered."""
-    q = identification.readings.position_mm
-    return {a: (float(q[:, k].min()), float(q[:, k].max())) for k, a in enumerate("XYZ")}
 
 
 @dataclass(frozen=True)
@@ -135,9 +129,7 @@ def calibrate(
         "outliers_dropped": imported.outliers_dropped,
     }
     result["volumetric_error_um"] = volumetric_summary(source)
-    result["squareness_over_volume"] = {
-        entry.squareness_id: entry.to_json() for entry in squareness_map(source)
-    }
+    result["squareness_over_volume"] = squareness_report(source)
     result |= loop.to_report()
     sensitivity_result = None
     if request.sensitivity:
@@ -436,16 +428,21 @@ def _squareness_lines(result: Mapping[str, Any]) -> list[str]:
     out = [
         "squareness (µrad): the model's parameter; the angle between the tool's paths (tool "
         f"offset {_at(result['machine']['tool_offset_mm'])}) through the centre of the measured "
-        f"volume ± standard uncertainty; lowest … highest over {n}×{n}×{n} places in it"
+        f"volume, and its lowest … highest over {n}×{n}×{n} places in it, each ± its standard "
+        "uncertainty"
     ]
     for sid, e in entries.items():
         tilted = f"; tilted by {', '.join(e['tilted_by'])}" if e["tilted_by"] else ""
         out.append(
-            f"  {sid} {e['parameter_urad']:.2f}; {e['at_centre_urad']:.2f} ± "
-            f"{e['at_centre_std_urad']:.2f}; {e['lowest_urad']:.2f} at {_at(e['lowest_at_mm'])} … "
-            f"{e['highest_urad']:.2f} at {_at(e['highest_at_mm'])}{tilted}"
+            f"  {sid} {e['parameter_urad']:.2f}; {_pm(e, 'at_centre')}; "
+            f"{_pm(e, 'lowest')} at {_at(e['lowest_at_mm'])} … "
+            f"{_pm(e, 'highest')} at {_at(e['highest_at_mm'])}{tilted}"
         )
     return out
+
+
+def _pm(entry: Mapping[str, Any], key: str) -> str:
+    return f"{entry[f'{key}_urad']:.2f} ± {entry[f'{key}_std_urad']:.2f}"
 
 
 def _at(place: Sequence[float]) -> str:

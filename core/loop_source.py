@@ -49,6 +49,12 @@ class LoopSource:
         return e
 
 
+def measured_range(identification: Identification) -> dict[str, tuple[float, float]]:
+    """Per axis, the range of positions the measured lines covered."""
+    q = identification.readings.position_mm
+    return {a: (float(q[:, k].min()), float(q[:, k].max())) for k, a in enumerate("XYZ")}
+
+
 def parameter_map(identification: Identification, refined: ErrorModel) -> FloatArray:
     """The linear map (rows: ``refined``'s parameters; columns: every unknown of the fit, the
     gauge's coordinates then the effects' values) from what ``identification`` fitted to

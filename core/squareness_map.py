@@ -9,8 +9,8 @@ the parameter the slopes that the angular errors draw through the lever arms of 
 of the tool, and the tilt of any kept effect that adds to a path (a cross-axis surface's slice
 changes from place to place: a table that twists makes the axes square at one height and not at
 another). This module reads that angle off the extended model — the 21 errors with the kept
-machine effects, at the model's tool offset — on a grid of places over the measured volume, and
-its standard uncertainty at the volume's centre from the fit's covariance of every unknown.
+machine effects, at the model's tool offset — on a grid of places over the measured volume, with
+its standard uncertainty at every place from the fit's covariance of every unknown.
 """
 
 from __future__ import annotations
@@ -21,8 +21,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .effects import Effect
+from .identify import Identification
 from .kinematics import jacobian
-from .loop_source import LoopSource, parameter_map
+from .loop_source import LoopSource, measured_range, parameter_map
 
 FloatArray = NDArray[np.float64]
 
@@ -35,43 +36,80 @@ PATHS = {"EC0Y": ("X", "Y", -1.0), "EB0Z": ("X", "Z", 1.0), "EA0Z": ("Y", "Z", -
 AXES = "XYZ"
 #: Points along each path (uniform over the measured range of its axis).
 PATH_POINTS = 101
-#: Places per axis of the grid the angle is read on (the range's ends and evenly between).
+#: Places per axis of the grid the angle is read on (the range's ends and evenly between; odd,
+#: so that the volume's centre is one of them).
 GRID_PER_AXIS = 5
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SquarenessAtPlaces:
-    """One squareness error as the tool's paths make it over the measured volume (µrad, mm)."""
+    """One squareness error as the tool's paths make it over the measured volume (µrad, mm):
+    the angle and its standard uncertainty at every place of the grid, and the places that
+    matter named."""
 
     squareness_id: str
     axes: tuple[str, str]
     #: per axis the range (mm) the paths span and the grid covers
     volume_mm: dict[str, tuple[float, float]]
     parameter_urad: float
-    centre_mm: tuple[float, float, float]
-    at_centre_urad: float
-    at_centre_std_urad: float
-    lowest_urad: float
-    lowest_at_mm: tuple[float, float, float]
-    highest_urad: float
-    highest_at_mm: tuple[float, float, float]
+    #: (N, 3) the grid's places, X slowest; the angle there and its standard uncertainty (N,)
+    places_mm: FloatArray
+    angle_urad: FloatArray
+    std_urad: FloatArray
     #: the kept machine effects that tilt one of the two paths somewhere on the grid
     tilted_by: tuple[str, ...]
 
+    @property
+    def centre(self) -> int:
+        return len(self.places_mm) // 2
+
+    @property
+    def lowest(self) -> int:
+        return int(np.argmin(self.angle_urad))
+
+    @property
+    def highest(self) -> int:
+        return int(np.argmax(self.angle_urad))
+
+    @property
+    def least_certain(self) -> int:
+        return int(np.argmax(self.std_urad))
+
+    @property
+    def centre_mm(self) -> tuple[float, float, float]:
+        return _place(self.places_mm[self.centre])
+
+    @property
+    def at_centre_urad(self) -> float:
+        return float(self.angle_urad[self.centre])
+
+    @property
+    def at_centre_std_urad(self) -> float:
+        return float(self.std_urad[self.centre])
+
     def to_json(self) -> dict[str, object]:
-        return {
+        out: dict[str, object] = {
             "axes": list(self.axes),
             "volume_mm": {axis: list(span) for axis, span in self.volume_mm.items()},
             "parameter_urad": self.parameter_urad,
-            "centre_mm": list(self.centre_mm),
-            "at_centre_urad": self.at_centre_urad,
-            "at_centre_std_urad": self.at_centre_std_urad,
-            "lowest_urad": self.lowest_urad,
-            "lowest_at_mm": list(self.lowest_at_mm),
-            "highest_urad": self.highest_urad,
-            "highest_at_mm": list(self.highest_at_mm),
-            "tilted_by": list(self.tilted_by),
         }
+        for key, index in (
+            ("at_centre", self.centre),
+            ("lowest", self.lowest),
+            ("highest", self.highest),
+            ("least_certain", self.least_certain),
+        ):
+            where = "centre_mm" if key == "at_centre" else f"{key}_at_mm"
+            out[where] = list(_place(self.places_mm[index]))
+            out[f"{key}_urad"] = float(self.angle_urad[index])
+            out[f"{key}_std_urad"] = float(self.std_urad[index])
+        out["tilted_by"] = list(self.tilted_by)
+        out["places"] = {
+            "place_mm": [list(_place(p)) for p in self.places_mm],
+            "angle_urad": [float(v) for v in self.angle_urad],
+            "std_urad": [float(v) for v in self.std_urad],
+        }
+        return out
 
 
 def squareness_map(source: LoopSource) -> tuple[SquarenessAtPlaces, ...]:
@@ -79,40 +117,45 @@ def squareness_map(source: LoopSource) -> tuple[SquarenessAtPlaces, ...]:
     of axes: the angle between the tool point's least-squares paths along the two axes through
     each place of a :data:`GRID_PER_AXIS`-per-axis grid over the measured volume
     (``source.measured_range_mm``, else the strokes), at the model's tool offset, with no
-    approach direction (a reversal's halves cancel); its value and standard uncertainty at the
-    grid's centre, and where it is lowest and highest. The uncertainty is first order: the
-    angle's gradient over every unknown of the fit (the 21 errors' gauge coordinates and the
-    kept effects' values) through their joint covariance."""
+    approach direction (a reversal's halves cancel), and its standard uncertainty there. The
+    uncertainty is first order: the angle's gradient over every unknown of the fit (the 21
+    errors' gauge coordinates and the kept effects' values) through their joint covariance."""
     fit = source.identification
     ranges = _ranges(source)
     places = _grid(ranges)
-    centre = np.array([0.5 * sum(ranges[axis]) for axis in AXES])
     mapping = parameter_map(fit, source.model)
+    covariance = fit.normal_inverse * fit.sigma_scale**2
     out = []
     for sid, (first, second, _) in PATHS.items():
         pair = (f"E{second}{first}", f"E{first}{second}")
         if not all(fit.is_identified(eid) for eid in (sid, *pair)):
             continue
-        angles = np.array([_angle(source, ranges, p, sid) for p in places])
-        at_centre = _angle(source, ranges, centre, sid)
-        low, high = int(np.argmin(angles)), int(np.argmax(angles))
+        gradients = _gradients(source, mapping, ranges, places, sid)
+        variances = np.einsum("ij,jk,ik->i", gradients, covariance, gradients)
         out.append(
             SquarenessAtPlaces(
                 squareness_id=sid,
                 axes=(first, second),
                 volume_mm={axis: (_mm(a), _mm(b)) for axis, (a, b) in ranges.items()},
                 parameter_urad=float(fit.model.squareness_urad[sid]),
-                centre_mm=_place(centre),
-                at_centre_urad=at_centre,
-                at_centre_std_urad=_std_at(source, mapping, ranges, centre, sid),
-                lowest_urad=float(angles[low]),
-                lowest_at_mm=_place(places[low]),
-                highest_urad=float(angles[high]),
-                highest_at_mm=_place(places[high]),
+                places_mm=places,
+                angle_urad=np.array([_angle(source, ranges, p, sid) for p in places]),
+                std_urad=np.sqrt(np.maximum(variances, 0.0)),
                 tilted_by=_tilting(source, ranges, places, sid),
             )
         )
     return tuple(out)
+
+
+def squareness_report(source: LoopSource) -> dict[str, dict[str, object]]:
+    """report.json's ``squareness_over_volume``: :func:`squareness_map` per squareness id."""
+    return {entry.squareness_id: entry.to_json() for entry in squareness_map(source)}
+
+
+def identification_squareness(identification: Identification) -> dict[str, dict[str, object]]:
+    """:func:`squareness_report` of ``identification`` over the volume its lines measured, as a
+    project keeps it with the identification."""
+    return squareness_report(LoopSource(identification, measured_range(identification)))
 
 
 def _grid(ranges: dict[str, tuple[float, float]]) -> FloatArray:
@@ -177,23 +220,25 @@ def _angle(
     return PATHS[sid][2] * total
 
 
-def _std_at(
+def _gradients(
     source: LoopSource,
     mapping: FloatArray,
     ranges: dict[str, tuple[float, float]],
-    place: FloatArray,
+    places: FloatArray,
     sid: str,
-) -> float:
-    """The angle's first-order standard uncertainty at ``place``; ``mapping`` takes the fit's
-    unknowns to the refined model's parameters (:func:`parameter_map`)."""
+) -> FloatArray:
+    """The angle's gradient at each of ``places`` over the fit's unknowns; ``mapping`` takes
+    them to the refined model's parameters (:func:`parameter_map`). A path spans its axis'
+    whole range, so the places along it share it: each path is differentiated once."""
     fit = source.identification
-    gradient = np.zeros(fit.system.size)
     columns = [b.columns for b in fit.system.blocks if b.kind == "effect"]
     tool = source.machine.tool_offset_mm
     sign = PATHS[sid][2]
-    for states, weights, component in _legs(ranges, place, sid):
+    per_path: dict[tuple[float, ...], FloatArray] = {}
+
+    def path_gradient(states: FloatArray, weights: FloatArray, component: int) -> FloatArray:
         design = jacobian(source.model, states, tool)[:, component, :]
-        gradient += sign * (mapping.T @ (weights @ design))
+        gradient = mapping.T @ (weights @ design)
         for effect, values, at in zip(fit.effects, fit.effect_parameters, columns, strict=True):
             if not isinstance(effect, Effect):
                 continue
@@ -201,10 +246,17 @@ def _std_at(
             per_value = np.stack(
                 [effect.error_um(u, source.machine, states)[:, component] for u in units], axis=1
             )
-            gradient[at] += sign * (weights @ per_value)
-    covariance = fit.normal_inverse * fit.sigma_scale**2
-    variance = float(gradient @ covariance @ gradient)
-    return float(np.sqrt(max(variance, 0.0)))
+            gradient[at] += weights @ per_value
+        return np.asarray(sign * gradient)
+
+    out = np.zeros((len(places), fit.system.size))
+    for i, place in enumerate(places):
+        for states, weights, component in _legs(ranges, place, sid):
+            key = (component, *states[0], *states[-1])
+            if key not in per_path:
+                per_path[key] = path_gradient(states, weights, component)
+            out[i] += per_path[key]
+    return out
 
 
 def _tilting(

@@ -299,8 +299,9 @@ class Outcome:
     expected_error: dict[str, float] = field(default_factory=dict)
     #: per squareness volucal maps over the volume (core/squareness_map.py), when asked: its
     #: error at the volume's centre against the true paths (µrad), its stated standard
-    #: uncertainty there, and its largest error over the map's places
-    path_squareness: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    #: uncertainty there, its largest error over the map's places, and at every place the error
+    #: divided by the standard uncertainty stated there
+    path_squareness: dict[str, tuple[float, float, float, np.ndarray]] = field(default_factory=dict)
 
     @property
     def visible_expected(self) -> set[tuple[str, str]]:

@@ -315,13 +315,16 @@ def true_path_angle(
     return sign * total
 
 
-def path_squareness(seed: int, truth: dict, result) -> dict[str, tuple[float, float, float]]:  # type: ignore[no-untyped-def]
+def path_squareness(  # type: ignore[no-untyped-def]
+    seed: int, truth: dict, result
+) -> dict[str, tuple[float, float, float, np.ndarray]]:
     """Per squareness volucal maps over the measured volume (core/squareness_map.py): its error
     at the volume's centre against the generator's paths (µrad), its stated standard
-    uncertainty there, and its largest error over every place of its grid."""
+    uncertainty there, its largest error over every place of its grid, and at every place the
+    error divided by the standard uncertainty stated there."""
     from volucal.core.calibrate import measured_range
     from volucal.core.loop_source import LoopSource
-    from volucal.core.squareness_map import GRID_PER_AXIS, path_angle, squareness_map
+    from volucal.core.squareness_map import squareness_map
 
     source = LoopSource(result.final, measured_range(result.final))
     scenario = build_scenario(seed)
@@ -329,13 +332,14 @@ def path_squareness(seed: int, truth: dict, result) -> dict[str, tuple[float, fl
     out = {}
     for entry in squareness_map(source):
         sid, ranges = entry.squareness_id, entry.volume_mm
-        axes = [np.linspace(*ranges[axis], GRID_PER_AXIS) for axis in "XYZ"]
-        places = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        centre = np.asarray(entry.centre_mm)
-        error = entry.at_centre_urad - true_path_angle(scenario, tool, sid, centre, ranges)
-        worst = max(
-            abs(path_angle(source, sid, p) - true_path_angle(scenario, tool, sid, p, ranges))
-            for p in places
+        true = np.array(
+            [true_path_angle(scenario, tool, sid, p, ranges) for p in entry.places_mm]
         )
-        out[sid] = (float(error), entry.at_centre_std_urad, float(worst))
+        errors = entry.angle_urad - true
+        out[sid] = (
+            float(errors[entry.centre]),
+            entry.at_centre_std_urad,
+            float(np.max(np.abs(errors))),
+            errors / entry.std_urad,
+        )
     return out
