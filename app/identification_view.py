@@ -44,6 +44,9 @@ from .view_base import View
 
 #: Coverage factor of the drawn band.
 K_BAND = 2.0
+#: The squareness table: the model's parameter, then the angle between the tool's paths
+#: (core/squareness_map.py) at the centre of the measured volume and over it.
+SQUARENESS_COLUMNS = ("squareness", "value", "U (k = 2)", "paths at centre", "paths over volume")
 
 
 class IdentificationView(View):
@@ -99,9 +102,9 @@ class IdentificationView(View):
                 note.hide()
                 self._curve_items[eid] = (band, curve, note)
 
-        self.squareness = QTableWidget(len(SQUARENESS_IDS), 3)
+        self.squareness = QTableWidget(len(SQUARENESS_IDS), len(SQUARENESS_COLUMNS))
         self.squareness.setObjectName("squarenessTable")
-        self.squareness.setHorizontalHeaderLabels(["squareness", "value", "U (k = 2)"])
+        self.squareness.setHorizontalHeaderLabels(list(SQUARENESS_COLUMNS))
         self.squareness.verticalHeader().setVisible(False)
         self.squareness.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
         self.squareness.horizontalHeader().setSectionResizeMode(
@@ -273,10 +276,13 @@ class IdentificationView(View):
             if not identified:
                 self.not_identified.add(eid)
             cells = [error_label(eid) + ("" if identified else ", not identified"),
-                     self.units.text(value, "urad"), self.units.text(expanded, "urad")]
-            for column, text in enumerate(cells):
+                     self.units.text(value, "urad"), self.units.text(expanded, "urad"),
+                     *self._paths_cells(record.squareness_map.get(eid))]
+            tips = [ERROR_INFO[eid].description] * 3 + [self._paths_tip(
+                record.squareness_map.get(eid))] * 2
+            for column, (text, tip) in enumerate(zip(cells, tips, strict=True)):
                 cell = QTableWidgetItem(text)
-                cell.setToolTip(ERROR_INFO[eid].description)
+                cell.setToolTip(tip)
                 if column:
                     cell.setTextAlignment(Qt.AlignmentFlag.AlignRight
                                           | Qt.AlignmentFlag.AlignVCenter)
@@ -284,8 +290,40 @@ class IdentificationView(View):
                     cell.setForeground(Qt.GlobalColor.gray)
                 self.squareness.setItem(row, column, cell)
         self.squareness.resizeColumnsToContents()
-        self.square_note.setText("Angle between the axes (ISO 230-1 signs); U is the expanded "
-                                 "uncertainty, k = 2. View ▸ Units shows them in arcsec.")
+        self.square_note.setText(
+            "Value: the angle between the axes (ISO 230-1 signs). Paths: the angle between the "
+            "tool point's least-squares paths along the two axes, as a square would read it, at "
+            "the centre of the measured volume and lowest … highest over 5 × 5 × 5 places in it "
+            "(hover for where). U is the expanded uncertainty, k = 2. View ▸ Units shows them "
+            "in arcsec.")
+
+    def _paths_cells(self, entry: dict | None) -> tuple[str, str]:
+        """The angle between the tool's paths at the centre ± U, and lowest … highest."""
+        if not entry:
+            return "—", "—"
+        u = self.units
+        centre = (f"{u.text(entry['at_centre_urad'], 'urad', False)} ± "
+                  f"{u.text(K_BAND * entry['at_centre_std_urad'], 'urad')}")
+        span = (f"{u.text(entry['lowest_urad'], 'urad', False)} … "
+                f"{u.text(entry['highest_urad'], 'urad')}")
+        return centre, span
+
+    def _paths_tip(self, entry: dict | None) -> str:
+        if not entry:
+            return ("not mapped: the plan identifies this squareness and both straightness "
+                    "functions of its axes only together, or the project predates the map")
+        u = self.units
+        lines = [f"the angle between the tool's paths over {_volume(entry['volume_mm'])}"]
+        for key, name in (("centre", "at the centre"), ("lowest", "lowest"),
+                          ("highest", "highest"), ("least_certain", "least certain")):
+            value_key = "at_centre" if key == "centre" else key
+            where = entry["centre_mm" if key == "centre" else f"{key}_at_mm"]
+            lines.append(f"{name}: {u.text(entry[f'{value_key}_urad'], 'urad', False)} ± "
+                         f"{u.text(K_BAND * entry[f'{value_key}_std_urad'], 'urad')} (k = 2) "
+                         f"at {_at(where)}")
+        if entry["tilted_by"]:
+            lines.append("tilted by " + ", ".join(entry["tilted_by"]))
+        return "\n".join(lines)
 
     def _fill_report(self, record: IdentificationRecord) -> None:
         ident = record.identifiability
@@ -389,3 +427,11 @@ def _short(value: object) -> str:
     if isinstance(value, list):
         return "[" + ", ".join(_short(v) for v in value) + "]"
     return str(value)
+
+
+def _at(place: list[float]) -> str:
+    return "(" + ", ".join(f"{v:g}" for v in place) + ") mm"
+
+
+def _volume(volume: dict[str, list[float]]) -> str:
+    return ", ".join(f"{axis} {a:g}…{b:g}" for axis, (a, b) in volume.items()) + " mm"

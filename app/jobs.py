@@ -7,6 +7,7 @@ Each job takes ``progress`` and ``cancel`` like the core steps it calls, so that
 from __future__ import annotations
 
 import hashlib
+import json
 import shutil
 import tempfile
 from collections.abc import Sequence
@@ -88,9 +89,15 @@ def run_identification(measurement: Measurement, options: IdentifyOptions,
                        progress: ProgressCallback | None = None,
                        cancel: CancelToken | None = None, name: str = "main") -> Identified:
     identification = identify(measurement, options, progress=progress, cancel=cancel)
-    return Identified(without_system(identification), options,
-                      IdentificationRecord.from_identification(name, identification, options),
-                      identification_result_tree(identification, options))
+    tree = identification_result_tree(identification, options)
+    record = IdentificationRecord.from_identification(
+        name, identification, options, squareness_map=_squareness_of(tree))
+    return Identified(without_system(identification), options, record, tree)
+
+
+def _squareness_of(tree: dict[str, Any]) -> dict[str, Any]:
+    """The squareness map an identification tree holds (computed once, for tree and record)."""
+    return dict(json.loads(str(tree["squareness_map_json"])))
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,16 +112,19 @@ class LoopRun:
     @classmethod
     def of(cls, loop: LoopResult, options: LoopOptions) -> LoopRun:
         identify_options = options.identify
+        trees = loop_result_trees(loop, identify_options)
         records = {
             ("identifications", "main"): IdentificationRecord.from_identification(
-                "main", loop.base, identify_options),
+                "main", loop.base, identify_options,
+                squareness_map=_squareness_of(trees[("identifications", "main")])),
             ("identifications", "loop"): IdentificationRecord.from_identification(
                 "loop", loop.final, loop.identify_options(identify_options),
-                loop_identifiability(loop)),
+                loop_identifiability(loop),
+                squareness_map=_squareness_of(trees[("identifications", "loop")])),
             ("loops", "main"): LoopRecord.from_loop("main", loop),
         }
         light = replace(loop, base=without_system(loop.base), final=without_system(loop.final))
-        return cls(light, options, loop_result_trees(loop, identify_options), records)
+        return cls(light, options, trees, records)
 
     def trees(self) -> dict[tuple[str, str], dict[str, Any]]:
         """The project results of a loop: the identifications before and after, the report."""
@@ -171,10 +181,11 @@ def refit_with_effects(
     identifiability["redundant_lines"] = list(redundant_lines)
     identifiability["redundancy_from"] = "the 21-error fit before the loop"
     report(progress, 1.0, "refitted")
+    tree = identification_result_tree(result, options, identifiability)
+    record = IdentificationRecord.from_identification(
+        name, result, options, identifiability, _squareness_of(tree))
     return Refit(without_system(result), cv, options, tuple(e.label for e in effects),
-                 tuple(rejected),
-                 IdentificationRecord.from_identification(name, result, options, identifiability),
-                 identification_result_tree(result, options, identifiability))
+                 tuple(rejected), record, tree)
 
 
 # --------------------------------------------------------------------------------------------

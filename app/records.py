@@ -34,6 +34,7 @@ from volucal.core.result_trees import (
     loop_tree,
     options_json,
 )
+from volucal.core.squareness_map import identification_squareness
 from volucal.core.userror import UserError
 
 __all__ = [
@@ -68,16 +69,23 @@ class IdentificationRecord:
     readings: ReadingTable | None = None
     effects: tuple[Mapping[str, Any], ...] = ()
     options: Mapping[str, Any] = field(default_factory=dict)
+    #: report.json's ``squareness_over_volume`` of this identification (empty in projects
+    #: written before the project kept it)
+    squareness_map: Mapping[str, Any] = field(default_factory=dict)
 
     @classmethod
     def from_identification(
         cls, name: str, identification: Identification, options: IdentifyOptions | None = None,
         identifiability: Mapping[str, Any] | None = None,
+        squareness_map: Mapping[str, Any] | None = None,
     ) -> IdentificationRecord:
         """``identifiability`` replaces the identification's own report (the loop's final fit
-        carries the plan's: :func:`loop_identifiability`)."""
+        carries the plan's: :func:`loop_identifiability`); ``squareness_map``, when the tree's
+        is at hand, saves computing it again."""
         own = identification.identifiability.to_json() if identifiability is None else \
             identifiability
+        if squareness_map is None:
+            squareness_map = identification_squareness(identification)
         return cls(
             name=name,
             parameters=json_safe(parameters_report(identification, CURVE_POINTS)),
@@ -86,6 +94,7 @@ class IdentificationRecord:
             readings=ReadingTable.from_identification(identification),
             effects=tuple(effect_entries(identification)),
             options=options_json(options),
+            squareness_map=json_safe(squareness_map),
         )
 
     @classmethod
@@ -99,6 +108,7 @@ class IdentificationRecord:
             readings=ReadingTable.from_tree(readings) if isinstance(readings, Mapping) else None,
             effects=tuple(json.loads(str(tree.get("effects_json", "[]")))),
             options=json.loads(str(tree.get("options_json", "{}"))),
+            squareness_map=json.loads(str(tree.get("squareness_map_json", "{}"))),
         )
 
     def residual_rms(self) -> tuple[float, float]:

@@ -287,6 +287,8 @@ class _Results:
         )
         tree = self.identification_tree()
         self.parameters = json.loads(tree["parameters_json"]) if tree else None
+        # projects written before the identification kept its squareness map have none
+        self.squareness_map = json.loads(str(tree.get("squareness_map_json", "{}"))) if tree else {}
         # the plan's identifiability is that of the 21-error fit ("main"): the loop's refits
         # skip the per-line redundancy test
         plan_tree = (
@@ -753,8 +755,62 @@ def _errors(results: _Results, units: DisplayUnits) -> Section:
                 tuple(rows),
                 "llrrr",
             ),
+            *_paths_squareness(results.squareness_map, units),
         ),
     )
+
+
+def _paths_squareness(mapped: dict[str, Any], units: DisplayUnits) -> tuple[Any, ...]:
+    """The angle between the tool's paths over the measured volume (report.json's
+    ``squareness_over_volume``), when the identification holds it."""
+    if not mapped:
+        return ()
+    symbol = units.symbol("urad")
+
+    def pm(entry: dict[str, Any], key: str) -> str:
+        value = units.text(entry[f"{key}_urad"], "urad", False)
+        return f"{value} ± {units.text(2.0 * entry[f'{key}_std_urad'], 'urad', False)}"
+
+    rows = tuple(
+        (
+            error_label(sid),
+            pm(entry, "at_centre"),
+            f"{pm(entry, 'lowest')} at {_at(entry['lowest_at_mm'])}",
+            f"{pm(entry, 'highest')} at {_at(entry['highest_at_mm'])}",
+            ", ".join(entry["tilted_by"]) or "—",
+        )
+        for sid, entry in mapped.items()
+    )
+    first = next(iter(mapped.values()))
+    volume = ", ".join(f"{axis} {a:g} to {b:g}" for axis, (a, b) in first["volume_mm"].items())
+    centre = _at(first["centre_mm"])
+    return (
+        Paragraph(
+            "What a square or a laser's squareness optics would read on the identified machine: "
+            "the angle between the least-squares lines of the tool point's two paths through a "
+            "place (ISO 230-1), each over its axis' measured range, with the kept machine "
+            f"effects, at the tool offset. Over the measured volume ({volume} mm), at its "
+            f"centre {centre} and lowest and highest over 5 × 5 × 5 places in it, each ± U "
+            "(k = 2). It differs from the value above by what the angular errors' change draws "
+            "through the lever arms of the place and the tool, and by the tilt of a kept "
+            "effect (tilted by)."
+        ),
+        Table(
+            (
+                "squareness",
+                f"at the centre {symbol}",
+                f"lowest {symbol}",
+                f"highest {symbol}",
+                "tilted by",
+            ),
+            rows,
+            "lrrrl",
+        ),
+    )
+
+
+def _at(place: list[float]) -> str:
+    return "(" + ", ".join(f"{v:g}" for v in place) + ") mm"
 
 
 def _loop(results: _Results) -> Section:

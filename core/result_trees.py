@@ -9,7 +9,8 @@ after, the RMS per group of lines) and in ``volucal export`` and ``volucal repor
   (``model``, ``covariance``, ``sigma_scale``, ``identifiability_json``, ``parameters_json``)
   plus ``readings`` (every reading's context and residual, :class:`ReadingTable`),
   ``effects_json`` (the effects fitted with the 21 errors, with the constructor fields needed to
-  refit them), ``options_json`` (how it was identified) and the residual RMS.
+  refit them), ``options_json`` (how it was identified), ``squareness_map_json`` (report.json's
+  ``squareness_over_volume`` of this identification) and the residual RMS.
 - ``/loops/<name>``: ``report_json`` (the loop blocks of report.json), ``candidates_json``
   (every effect the loop tried, kept or rejected), ``decisions_json`` (a user's accept/reject
   refit) and the names of the identifications before and after the loop.
@@ -39,6 +40,7 @@ from .identify import Identification, IdentifyOptions, parameters_report, residu
 from .machine import Machine
 from .measurement import Measurement
 from .residuals import LoopResult, line_group
+from .squareness_map import identification_squareness
 from .userror import UserError
 
 FloatArray = NDArray[np.float64]
@@ -284,6 +286,7 @@ def identification_result_tree(
     tree["readings"] = ReadingTable.from_identification(identification).to_tree()
     tree["effects_json"] = json_text(effect_entries(identification))
     tree["options_json"] = json_text(options_json(options))
+    tree["squareness_map_json"] = json_text(identification_squareness(identification))
     rms_um, rms_urad = residual_rms(identification)
     tree["residual_rms_um"] = rms_um
     tree["residual_rms_urad"] = rms_urad

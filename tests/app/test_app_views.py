@@ -2,6 +2,7 @@
 label, a project as ``volucal calibrate`` writes it, stale displays, two projects in a row."""
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -394,6 +395,46 @@ def test_squareness_is_shown_as_numbers_with_units(qtbot, window):
         value = float(record.parameters[eid]["value"][0])
         shown, unit = view.squareness.item(row, 1).text().split()
         assert unit == "arcsec" and float(shown) == pytest.approx(value * 0.206265, abs=2e-3)
+
+
+def test_the_squareness_between_the_tool_paths_is_shown_beside_the_parameter(
+        qtbot, demo_project, demo_run):
+    # a project `volucal calibrate` wrote, opened: the loop's map as report.json has it, as a
+    # square would read it, at the centre of the measured volume ± U (k = 2) and its range
+    window = MainWindow()
+    qtbot.addWidget(window, before_close_func=lambda w: w.document.undo_stack.setClean())
+    window.show()
+    assert window.open_project(demo_project)
+    view = window.show_view("identification")
+    view.select("loop")
+    mapped = window.document.identification("loop").squareness_map
+    assert mapped == json.loads((demo_run / "report.json").read_text())["squareness_over_volume"]
+    header = [view.squareness.horizontalHeaderItem(c).text() for c in range(5)]
+    assert header[3:] == ["paths at centre", "paths over volume"]
+    for row, eid in enumerate(("EC0Y", "EB0Z", "EA0Z")):
+        e = mapped[eid]
+        centre = view.squareness.item(row, 3)
+        assert centre.text() == (
+            f"{e['at_centre_urad']:.2f} ± {2 * e['at_centre_std_urad']:.2f} µrad")
+        assert view.squareness.item(row, 4).text() == (
+            f"{e['lowest_urad']:.2f} … {e['highest_urad']:.2f} µrad")
+        where = ", ".join(f"{v:g}" for v in e["lowest_at_mm"])
+        assert f"lowest: {e['lowest_urad']:.2f} ± {2 * e['lowest_std_urad']:.2f} µrad (k = 2) " \
+               f"at ({where}) mm" in centre.toolTip()
+    window.set_units("angle", "arcsec")
+    shown = view.squareness.item(1, 3).text()
+    assert shown.endswith(" arcsec")
+    assert float(shown.split()[0]) == pytest.approx(
+        mapped["EB0Z"]["at_centre_urad"] * 0.206265, abs=2e-3)
+
+
+def test_a_plan_that_cannot_map_the_squareness_says_so(qtbot, window):
+    # the nine-line plan measures no straightness: no pair of paths to read an angle between
+    view = window.show_view("identification")
+    view.select("loop")
+    assert window.document.identification("loop").squareness_map == {}
+    assert view.squareness.item(0, 3).text() == "—"
+    assert view.squareness.item(0, 3).toolTip().startswith("not mapped")
 
 
 def test_report_dialog_keeps_the_certificate_with_the_project(qtbot, window, wait_idle,

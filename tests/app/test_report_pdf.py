@@ -72,6 +72,27 @@ def test_demo_report_has_every_part_on_its_pages(demo_run, poppler, tmp_path):
     assert "Every one of the 49 lines is redundant" in " ".join(text.split())
 
 
+def test_the_certificate_prints_the_squareness_between_the_tool_paths(demo_run, poppler,
+                                                                        tmp_path):
+    # the figures the console and report.json give, each ± U (k = 2), with the places named
+    pdf = tmp_path / "report.pdf"
+    write_report(demo_run / "demo.h5", pdf)
+    text = pdf_text(pdf)
+    mapped = json.loads((demo_run / "report.json").read_text())["squareness_over_volume"]
+    assert set(mapped) == {"EC0Y", "EB0Z", "EA0Z"}
+    for sid, e in mapped.items():
+        def pm(key, e=e):
+            return f"{e[f'{key}_urad']:.2f} ± {2 * e[f'{key}_std_urad']:.2f}"
+
+        lowest = ", ".join(f"{v:g}" for v in e["lowest_at_mm"])
+        highest = ", ".join(f"{v:g}" for v in e["highest_at_mm"])
+        row = re.search(rf"^\s*{sid} \(.*$", text.split("What a square")[1], re.MULTILINE)
+        assert row is not None, sid
+        cells = " ".join(row.group(0).split())
+        assert f"{pm('at_centre')} {pm('lowest')} at ({lowest}) mm {pm('highest')} at " \
+               f"({highest}) mm —" in cells, cells
+
+
 def test_demo_report_lists_compensation_files_with_their_checksums(demo_run, poppler,
                                                                    tmp_path):
     pdf = tmp_path / "report.pdf"
