@@ -498,7 +498,7 @@ class CrossAxis(Effect):
             "peak_um": float(np.max(np.abs(surface))),
             "rms_um": float(np.sqrt(np.mean(surface**2))),
             # the surface's standard uncertainty, RMS over the pair's strokes; a shape the plan
-            # does not settle between orders is in it (core/loop_choice.py, _unsettled)
+            # does not settle between orders is in it (core/loop_choice.py, unsettled)
             "rms_std_um": float(np.sqrt(max(float(np.mean(variance)), 0.0))),
         }
 

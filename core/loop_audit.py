@@ -10,33 +10,33 @@ from scipy import special
 
 from .effects import AbbeOffset, Cosine, CrossAxis, Effect, LocalDefect, ThermalDrift
 from .identify import CrossValidation, Identification
-from .loop_compare import _compared, _Fitter, _later_step, _rows_compared
+from .loop_compare import Fitter, cv_compared, later_step, rows_compared
 from .loop_courses import (
-    _moved,
-    _scale_in_time,
-    _scales_in_time,
-    _settled_at,
-    _settling_lines,
-    _unsteady_scales,
+    moved_axes,
+    scale_in_time,
+    scales_in_time,
+    settled_scale_at,
+    settling_lines,
+    unsteady_scales,
 )
 from .loop_judge import (
     ONE_SHAPE,
-    _gained_through_lines_it_leaves,
-    _held_out_gain,
-    _implausible_fitted,
-    _Sizes,
-    _unequal,
+    Sizes,
+    gained_through_lines_it_leaves,
+    held_out_gain_per_line,
+    implausible_fitted,
+    unequal,
 )
 from .loop_records import LoopOptions, Step
-from .loop_refine import _without
-from .loop_search import _drift_forms, _TauGrid
-from .loop_tester import _and, _corrected, _log10_text, _Tester
-from .loop_unexplained import _line_test, _systematic_lines, _unexplained_by_line, _widespread
+from .loop_refine import fit_without
+from .loop_search import TauGrid, drift_forms
+from .loop_tester import Tester, corrected, in_words, log10_text
+from .loop_unexplained import line_test, systematic_lines, unexplained_by_line, widespread
 from .measurement import Line
 
 
-def _audit(
-    fit: _Fitter,
+def audit(
+    fit: Fitter,
     current: Identification,
     cv: CrossValidation,
     kept: list[Effect],
@@ -48,7 +48,7 @@ def _audit(
 ) -> tuple[Identification, CrossValidation, list[Effect]]:
     """With every kept effect in the model, each must still be physically plausible (a refit with
     later effects can move an Abbe offset's lever arm past the optics' reach), and each effect of
-    one shape must have one size on every line that shows it (:class:`_Sizes`); an implausible
+    one shape must have one size on every line that shows it (:class:`Sizes`); an implausible
     one, else the one that varies most, is taken out and the rest refitted, until all agree.
     Done after the forward steps because while another effect was still missing, the lines it
     spoils could not agree; when it takes an effect out, :func:`close_loop` runs the forward
@@ -62,22 +62,22 @@ def _audit(
         failures = []
         # the lines whose scale changes in time, once per round: a set-up that is a scale of a
         # line moving such an axis is taken out; a line whose scale settles may take its own size
-        moving = _scales_in_time(current, options.alpha)
-        unsteady = _unsteady_scales(current, moving)
+        moving = scales_in_time(current, options.alpha)
+        unsteady = unsteady_scales(current, moving)
         steadier = _steadier_drift(fit, current, cv, kept, base, unsteady, read_again, options)
         if steadier is not None:
             old, new, refit, cv_new, reason = steadier
             read_again.add(old.axis)
             steps.append(
-                _later_step(
+                later_step(
                     number, new, refit, (refit, cv_new), True, reason, (current, cv), "refine"
                 )
             )
             kept = [new if e is old else e for e in kept]
             current, cv = refit, cv_new
             continue
-        settling = _settling_lines(current, moving, options.alpha)
-        settled_at = _settled_at(current, moving, settling)
+        settling = settling_lines(current, moving, options.alpha)
+        settled_at = settled_scale_at(current, moving, settling)
         for index, effect in enumerate(current.effects):
             assert isinstance(effect, Effect)
             values = current.effect_parameters[index]
@@ -87,7 +87,7 @@ def _audit(
                 if isinstance(effect, LocalDefect)
                 else None
             )
-            implausible = _implausible_fitted(current, index, options, fit, without)
+            implausible = implausible_fitted(current, index, options, fit, without)
             if implausible is not None:
                 # plausible when kept, moved past the limits by the effects kept after it
                 reason = f"implausible with every kept effect in the model: {implausible}"
@@ -99,7 +99,7 @@ def _audit(
                     why = _read_long_beside(current, effect, options.alpha)
                 if why is None:
                     contribution = effect.design(current.readings, current.model) @ values
-                    why = _scale_in_time(current, effect, contribution, unsteady, settled_at)
+                    why = scale_in_time(current, effect, contribution, unsteady, settled_at)
                 if why is not None:
                     failures.append((1, np.inf, effect, why))
                 continue
@@ -116,8 +116,8 @@ def _audit(
                     failures.append((1, np.inf, effect, why))
                     continue
             contribution = effect.design(current.readings, current.model) @ values
-            change = _Sizes(current, index, contribution, list(settling)).by_line()
-            why = _unequal(change, options)
+            change = Sizes(current, index, contribution, list(settling)).by_line()
+            why = unequal(change, options)
             if why is not None:
                 failures.append((0, change.spread, effect, why))
         if not failures:
@@ -127,7 +127,7 @@ def _audit(
         refit, cv_new = (base, cv_base) if not rest else fit(rest, current.model)
         reason = f"removed by the audit: {why}"
         steps.append(
-            _later_step(
+            later_step(
                 number, effect, current, (refit, cv_new), False, reason, (current, cv), "audit"
             )
         )
@@ -137,7 +137,7 @@ def _audit(
 
 
 def _steadier_drift(
-    fit: _Fitter,
+    fit: Fitter,
     current: Identification,
     cv: CrossValidation,
     kept: list[Effect],
@@ -147,7 +147,7 @@ def _steadier_drift(
     options: LoopOptions,
 ) -> tuple[ThermalDrift, ThermalDrift, Identification, CrossValidation, str] | None:
     """A kept drift of an axis whose scale still changes in time (``unsteady``) read in another
-    of its forms (:func:`_drift_forms`, τ placed against what the model without it leaves) with
+    of its forms (:func:`drift_forms`, τ placed against what the model without it leaves) with
     which that axis' scale stands still, predicting the held-out readings within the tie: the
     drift as kept, as read again, the refit, and why; None where no form does (each axis once,
     ``read_again``).
@@ -171,9 +171,9 @@ def _steadier_drift(
             continue
         if drift.axis in read_again:
             continue
-        tester = _without(drift, kept, fit, current.model, base)
+        tester = fit_without(drift, kept, fit, current.model, base)
         ref = drift.reference_mm
-        for make, within, _ in _drift_forms(readings, drift.axis, ref, options.time_constants_s):
+        for make, within, _ in drift_forms(readings, drift.axis, ref, options.time_constants_s):
             other = make(drift.time_constant_s)
             if other.label == drift.label:
                 continue
@@ -185,17 +185,17 @@ def _steadier_drift(
                 def gain(
                     log_tau: float,
                     make: Callable[[float], ThermalDrift] = make,
-                    tester: _Tester = tester,
+                    tester: Tester = tester,
                 ) -> float:
                     moved = make(float(np.exp(log_tau)))
                     return tester.drop(moved.design(tester.ident.readings, tester.ident.model))
 
-                other = make(float(np.exp(_TauGrid(gain, low, high).refined())))
+                other = make(float(np.exp(TauGrid(gain, low, high).refined())))
             trial = [other if e is drift else e for e in kept]
             refit, cv_new = fit(trial, current.model)
-            if drift.axis in _unsteady_scales(refit, _scales_in_time(refit, options.alpha)):
+            if drift.axis in unsteady_scales(refit, scales_in_time(refit, options.alpha)):
                 continue
-            before, after, _ = _compared(cv, cv_new, current, other_fit=refit)
+            before, after, _ = cv_compared(cv, cv_new, current, other_fit=refit)
             if after <= before * (1.0 + options.tie):
                 found.append((after, before, drift, other, refit, cv_new))
     if not found:
@@ -207,7 +207,7 @@ def _steadier_drift(
         + (f" (τ {other.time_constant_s / 60:.4g} min)" if other.searched else "")
         + f" in the final audit: as kept, it left the {drift.axis} scale changing in time (line "
         f"{by.name} follows its distance times a course in time, {swing:.3g} µm RMS, log10 false "
-        f"alarm {_log10_text(p)}); read again, no line moving {drift.axis} alone does, and the "
+        f"alarm {log10_text(p)}); read again, no line moving {drift.axis} alone does, and the "
         f"held-out readings are predicted within the {100 * options.tie:g} % tie "
         f"(cross-validated RMS {before:.4g} → "
         f"{after:.4g})"
@@ -216,7 +216,7 @@ def _steadier_drift(
 
 
 def _carried_to_the_end(
-    fit: _Fitter,
+    fit: Fitter,
     current: Identification,
     cv: CrossValidation,
     effect: CrossAxis,
@@ -226,7 +226,7 @@ def _carried_to_the_end(
 ) -> str | None:
     """Why a kept surface is taken out by the audit: in the final model, what it gains held out
     is the disagreement of a few lines it leaves systematic
-    (:func:`_gained_through_lines_it_leaves`, asked with the lines the final model leaves
+    (:func:`gained_through_lines_it_leaves`, asked with the lines the final model leaves
     systematic in place of those of the model it joined).
 
     When it was kept, the lines systematic may have been many, and the test was not asked:
@@ -236,19 +236,19 @@ def _carried_to_the_end(
     (indep. 5000106, sparse plan, 2.2 µm reflector twitches on four lines outside the
     catalogue: six lines systematic, a surface EX over X×Z of order 8 kept at 6.9 % better held
     out, the four twitching lines still systematic beside it and nothing else kept)."""
-    left = _systematic_lines(current, fit.loop_options.alpha)
-    if not left or _widespread(left, len(current.readings.lines)):
+    left = systematic_lines(current, fit.loop_options.alpha)
+    if not left or widespread(left, len(current.readings.lines)):
         return None
     rest = [e for e in kept if e is not effect]
     without, cv_without = (base, cv_base) if not rest else fit(rest, current.model)
-    rows, _ = _rows_compared(cv_without, cv, without, current)
-    per_line = _held_out_gain(_Tester(without), cv_without, cv, rows)
-    carried = _gained_through_lines_it_leaves(effect, without, current, per_line, fit, current)
+    rows, _ = rows_compared(cv_without, cv, without, current)
+    per_line = held_out_gain_per_line(Tester(without), cv_without, cv, rows)
+    carried = gained_through_lines_it_leaves(effect, without, current, per_line, fit, current)
     return None if carried is None else carried[0]
 
 
 def _scales_instead(
-    fit: _Fitter,
+    fit: Fitter,
     current: Identification,
     effect: CrossAxis,
     kept: list[Effect],
@@ -257,7 +257,7 @@ def _scales_instead(
     alpha: float,
 ) -> str | None:
     """Why a kept surface is taken out by the audit: an axis' scale changes in time beyond what
-    the model holds (``unsteady``, :func:`_unsteady_scales`), and beside a scale of its own on
+    the model holds (``unsteady``, :func:`unsteady_scales`), and beside a scale of its own on
     every linear line that moves such an axis, the surface explains nothing beyond the noise (a
     χ² test of what it adds to those scales, in units of the noise with it in the model, at
     ``alpha``).
@@ -274,11 +274,11 @@ def _scales_instead(
     lines = [
         index
         for index, line in enumerate(readings.lines)
-        if line.spec.quantity == "linear" and set(_moved(line.spec)) & set(unsteady)
+        if line.spec.quantity == "linear" and set(moved_axes(line.spec)) & set(unsteady)
     ]
     if not lines:
         return None
-    tester = _without(effect, kept, fit, current.model, base)
+    tester = fit_without(effect, kept, fit, current.model, base)
     model = tester.ident.model
     surface = effect.design(readings, model)
     scales = np.hstack([Cosine(i, readings.lines[i].name).design(readings, model) for i in lines])
@@ -287,25 +287,25 @@ def _scales_instead(
     both = tester.drop(np.hstack([surface, scales]))
     dimensions = tester.last_dimensions - scale_dimensions
     # in units of the noise with the surface in the model: without it, what it explains inflates σ²
-    beyond = (both - free) * tester.sigma2 / max(_Tester(current).sigma2, 1e-300)
+    beyond = (both - free) * tester.sigma2 / max(Tester(current).sigma2, 1e-300)
     p = float(special.chdtrc(dimensions, beyond)) if dimensions > 0 and beyond > 0 else 1.0
     if p < alpha:
         return None
     axes = sorted(unsteady)
-    courses = _and([f"{a} (log10 false alarm {_log10_text(unsteady[a][0])})" for a in axes])
+    courses = in_words([f"{a} (log10 false alarm {log10_text(unsteady[a][0])})" for a in axes])
     return (
         f"the scale of {courses} changes in time beyond the model, and beside a scale of its "
-        f"own on each of the {len(lines)} linear lines moving {_and(axes)} the surface explains "
-        f"nothing beyond the noise (χ² {max(beyond, 0.0):.1f} on {max(dimensions, 0)} degrees "
-        "of freedom): it gave lines measured at different times the scales of where they lie, "
-        "a time read as a place"
+        f"own on each of the {len(lines)} linear lines moving {in_words(axes)} the surface "
+        f"explains nothing beyond the noise (χ² {max(beyond, 0.0):.1f} on {max(dimensions, 0)} "
+        "degrees of freedom): it gave lines measured at different times the scales of where they "
+        "lie, a time read as a place"
     )
 
 
 def _leaves_its_line(fit: Identification, effect: AbbeOffset | Cosine, alpha: float) -> str | None:
     """Why a set-up error of one line does not explain that line: with every kept effect in the
-    model, its line alone (:func:`_unexplained_by_line`) keeps a residual that changes in time
-    beyond the line's repeatability (the time test of :func:`_line_test`, that line alone at
+    model, its line alone (:func:`unexplained_by_line`) keeps a residual that changes in time
+    beyond the line's repeatability (the time test of :func:`line_test`, that line alone at
     ``alpha``: the effect was kept for what its own line shows). Where the beam points and where
     the optics sit is fixed while a line runs: a set-up error changes the line's scale or adds a
     term in its angles, the same in every run, so a line whose runs still drift apart shows
@@ -315,14 +315,14 @@ def _leaves_its_line(fit: Identification, effect: AbbeOffset | Cosine, alpha: fl
     one too (blind 19167). Where other lines keep structure as well, the model lacks something
     that may spoil this line too, and the set-up error is not judged by it."""
     index = effect.line
-    p_time = _line_test(fit.readings, fit.residual, index).p_time
+    p_time = line_test(fit.readings, fit.residual, index).p_time
     if p_time >= alpha or any(
-        i != index for i, _ in _unexplained_by_line(fit, None, alpha, directions=False)
+        i != index for i, _ in unexplained_by_line(fit, None, alpha, directions=False)
     ):
         return None
     return (
         f"line {effect.line_name} keeps a residual that changes in time beyond its "
-        f"repeatability with it in the model (log10 false alarm {_log10_text(p_time)}): a set-up "
+        f"repeatability with it in the model (log10 false alarm {log10_text(p_time)}): a set-up "
         "error is the same in every run of its line, so it took part of something that changes "
         "in time, not all of it"
     )
@@ -345,7 +345,7 @@ def _read_long_beside(fit: Identification, effect: Cosine, alpha: float) -> str 
     freed."""
     readings = fit.readings
     own = np.abs(readings.lines[effect.line].spec.direction) > 1e-6
-    tester = _Tester(fit)
+    tester = Tester(fit)
     columns, z_scores = {}, {}
     for index, line in enumerate(readings.lines):
         along = np.abs(line.spec.direction) > 1e-6
@@ -380,7 +380,7 @@ def _read_long_beside(fit: Identification, effect: Cosine, alpha: float) -> str 
     gain, name, scale, std = worst
     # one-sided, over every line tested
     log10_p = float(np.log10(max(special.fdtrc(1, tester.dof, gain) / 2.0, 1e-300)))
-    log10_p = _corrected(log10_p, len(columns))
+    log10_p = corrected(log10_p, len(columns))
     if log10_p >= np.log10(alpha):
         return None
     return (

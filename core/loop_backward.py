@@ -10,17 +10,25 @@ import numpy as np
 
 from .effects import CrossAxis, Effect
 from .identify import CrossValidation, Identification
-from .loop_choice import _complexity, _terms
-from .loop_compare import _compared, _Fitter, _later_step, _rows_compared, _step, _Trial, _with
-from .loop_forward import _tried
-from .loop_judge import _any_implausible, _gain_where_it_acts, _wald
+from .loop_choice import complexity, effect_terms
+from .loop_compare import (
+    Fitter,
+    Trial,
+    cv_compared,
+    kept_with,
+    later_step,
+    rows_compared,
+    step_record,
+)
+from .loop_forward import try_finding
+from .loop_judge import any_implausible, gain_where_it_acts, wald_statistic
 from .loop_records import Finding, LoopOptions, Step
 from .loop_search import diagnose
-from .loop_unexplained import WIDESPREAD_MARGIN_FACTOR, WIDESPREAD_SHARE, _unexplained_lines
+from .loop_unexplained import WIDESPREAD_MARGIN_FACTOR, WIDESPREAD_SHARE, unexplained_lines
 
 
-def _backward(
-    fit: _Fitter,
+def backward(
+    fit: Fitter,
     current: Identification,
     cv: CrossValidation,
     kept: list[Effect],
@@ -37,7 +45,7 @@ def _backward(
     1 % better; taken out, the audit took the cosine out after it and both were lost)."""
     while kept:
         costs = []
-        left = len(_unexplained_lines(current, cv, options.alpha))
+        left = len(unexplained_lines(current, cv, options.alpha))
         widespread = left >= WIDESPREAD_SHARE * len(current.readings.lines)
         needed = WIDESPREAD_MARGIN_FACTOR * options.margin if widespread else options.margin
         # Removing an effect raises the weighted sum of squares by its Wald statistic βᵀC⁻¹β
@@ -47,19 +55,19 @@ def _backward(
         allowed = ((1.0 + options.margin) ** 2 - 1.0) * max(len(current.residual), 1)
         for effect in kept:
             index = list(current.effects).index(effect)
-            if not widespread and _wald(current, index) > 4.0 * allowed:
+            if not widespread and wald_statistic(current, index) > 4.0 * allowed:
                 continue
             rest = [e for e in kept if e is not effect]
             refit, cv_new = (base, cv_base) if not rest else fit(rest, current.model)
-            if _any_implausible(refit, options) is not None:
+            if any_implausible(refit, options) is not None:
                 continue  # the rest explains the data only with parameters no set-up allows
-            with_it, without, _ = _compared(cv, cv_new, current, other_fit=refit)
+            with_it, without, _ = cv_compared(cv, cv_new, current, other_fit=refit)
             cost = without / with_it - 1.0
             # an effect that acts on few readings (a bump, a reversal's slope) is asked over
             # them, as when it was kept
             if 0.0 < cost < needed:
-                rows, _ = _rows_compared(cv, cv_new, current, refit)
-                reach = _gain_where_it_acts(effect, current, rows, cv, cv_new)
+                rows, _ = rows_compared(cv, cv_new, current, refit)
+                reach = gain_where_it_acts(effect, current, rows, cv, cv_new)
                 if reach is not None:
                     cost = max(cost, -reach[0])
             costs.append((cost, effect, refit, cv_new, with_it, without))
@@ -84,7 +92,7 @@ def _backward(
                 "what it did"
             )
         steps.append(
-            _later_step(
+            later_step(
                 number, effect, current, (refit, cv_new), False, reason, (current, cv), "backward"
             )
         )
@@ -93,8 +101,8 @@ def _backward(
     return current, cv, kept
 
 
-def _set_up_for_surface(
-    fit: _Fitter,
+def set_up_for_surface(
+    fit: Fitter,
     current: Identification,
     cv: CrossValidation,
     kept: list[Effect],
@@ -115,7 +123,7 @@ def _set_up_for_surface(
     explain nothing the cosine does not (blind 43187, displacement-only plan: EZ over X×Z kept at
     step 1 for 0.1164 µm against 0.1256 µm for a 4.1 mrad misalignment of z_lin_1; with EX over
     X×Y kept, 0.07514 against 0.07509). The strongest set-up finding of the model without the
-    surface is refitted in its place; the tie rule of a step (:func:`_simplest_best`) is asked
+    surface is refitted in its place; the tie rule of a step (:func:`simplest_best`) is asked
     again of the two. :func:`close_loop` then runs the backward pass once more: another kept
     effect may have taken what the set-up error now explains (blind 41008: a cosine error of
     body_mpp kept beside the surface that stood in for body_ppp's). Where no set-up error takes
@@ -126,15 +134,17 @@ def _set_up_for_surface(
         without, cv_without = (base, cv_base) if not rest else fit(rest, current.model)
         findings, _ = diagnose(without, [e.key for e in rest], options)
         set_up = _strongest_set_up(findings, options)
-        trial = None if set_up is None else _tried(set_up, fit, rest, without, cv_without, options)
+        trial = (
+            None if set_up is None else try_finding(set_up, fit, rest, without, cv_without, options)
+        )
         if trial is not None and trial.ok:
-            with_surface, with_set_up, _ = _compared(cv, trial.cv, current, other_fit=trial.refit)
+            with_surface, with_set_up, _ = cv_compared(cv, trial.cv, current, other_fit=trial.refit)
         if (
             set_up is None
             or trial is None
             or not trial.ok
             or with_set_up > with_surface * (1.0 + options.tie)
-            or _complexity(trial) >= _terms(surface, current)
+            or complexity(trial) >= effect_terms(surface, current)
         ):
             # no set-up error takes the surface's place whole: one may take its highest order's
             lowered = _lower_order_beside_set_up(surface, rest, fit, current, cv, options)
@@ -146,7 +156,7 @@ def _set_up_for_surface(
             f"cross-validated RMS {with_surface:.4g} with the surface, {with_set_up:.4g} with "
             "the set-up error in its place"
         )
-        current, cv, kept = _given_way(
+        current, cv, kept = given_way(
             steps, number, surface, (current, cv), trial, reason, (without, cv_without)
         )
     return current, cv, kept
@@ -165,12 +175,12 @@ def _strongest_set_up(findings: list[Finding], options: LoopOptions) -> Finding 
     )
 
 
-def _given_way(
+def given_way(
     steps: list[Step],
     number: int,
     surface: Effect,
     before: tuple[Identification, CrossValidation],
-    trial: _Trial,
+    trial: Trial,
     reason: str,
     without: tuple[Identification, CrossValidation],
 ) -> tuple[Identification, CrossValidation, list[Effect]]:
@@ -179,7 +189,7 @@ def _given_way(
     and the refit's model, cross-validation and kept effects."""
     steps.append(_surface_replaced(number, surface, *before, trial, reason))
     steps.append(
-        _step(
+        step_record(
             number,
             trial,
             True,
@@ -188,7 +198,7 @@ def _given_way(
             stage="backward",
         )
     )
-    # the refit's own effects: a drift beside it may have been placed again (_tried)
+    # the refit's own effects: a drift beside it may have been placed again (try_finding)
     kept = [e for e in trial.refit.effects if isinstance(e, Effect)]
     return trial.refit, trial.cv, kept
 
@@ -198,11 +208,11 @@ def _surface_replaced(
     surface: Effect,
     current: Identification,
     cv: CrossValidation,
-    trial: _Trial,
+    trial: Trial,
     reason: str,
 ) -> Step:
     """The backward step of a kept surface that gives way to ``trial``'s fit."""
-    return _later_step(
+    return later_step(
         number,
         surface,
         current,
@@ -221,7 +231,7 @@ class _Lowered(NamedTuple):
     lower: CrossAxis
     lower_fit: Identification
     cv_lower: CrossValidation
-    trial: _Trial
+    trial: Trial
     with_surface: float
     with_both: float
 
@@ -229,7 +239,7 @@ class _Lowered(NamedTuple):
 def _lower_order_beside_set_up(
     surface: CrossAxis,
     rest: list[Effect],
-    fit: _Fitter,
+    fit: Fitter,
     current: Identification,
     cv: CrossValidation,
     options: LoopOptions,
@@ -248,16 +258,16 @@ def _lower_order_beside_set_up(
         return None
     machine = current.model.machine
     lower = replace(surface, order=surface.order - 1)
-    lower_fit, cv_lower = fit(_with(rest, lower, machine), current.model)
+    lower_fit, cv_lower = fit(kept_with(rest, lower, machine), current.model)
     findings, _ = diagnose(lower_fit, [e.key for e in (*rest, lower)], options)
     set_up = _strongest_set_up(findings, options)
     if set_up is None:
         return None
-    trial = _tried(set_up, fit, [*rest, lower], lower_fit, cv_lower, options)
+    trial = try_finding(set_up, fit, [*rest, lower], lower_fit, cv_lower, options)
     if not trial.ok:
         return None
-    with_surface, with_both, _ = _compared(cv, trial.cv, current, other_fit=trial.refit)
-    fewer = _terms(lower, trial.refit) + _complexity(trial) < _terms(surface, current)
+    with_surface, with_both, _ = cv_compared(cv, trial.cv, current, other_fit=trial.refit)
+    fewer = effect_terms(lower, trial.refit) + complexity(trial) < effect_terms(surface, current)
     if with_both > with_surface * (1.0 + options.tie) or not fewer:
         return None
     return _Lowered(lower, lower_fit, cv_lower, trial, with_surface, with_both)
@@ -286,9 +296,9 @@ def _lowered(
         trial.refit.effect_parameters[index], trial.refit.effect_covariances[index]
     )
     finding = Finding(lower, float("nan"), 0.0, 0, 0.0, 0.0, "backward pass")
-    held = _Trial(finding, trial.refit, trial.cv, True, reason, parameters)
+    held = Trial(finding, trial.refit, trial.cv, True, reason, parameters)
     steps.append(
-        _step(
+        step_record(
             number,
             held,
             True,
@@ -300,7 +310,7 @@ def _lowered(
         )
     )
     steps.append(
-        _step(
+        step_record(
             number,
             trial,
             True,
@@ -311,6 +321,6 @@ def _lowered(
             stage="backward",
         )
     )
-    # the refit's own effects: a drift beside it may have been placed again (_tried)
+    # the refit's own effects: a drift beside it may have been placed again (try_finding)
     kept = [e for e in trial.refit.effects if isinstance(e, Effect)]
     return trial.refit, trial.cv, kept

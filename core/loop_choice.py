@@ -14,20 +14,20 @@ from .effects import AbbeOffset, Cosine, CrossAxis, Cyclic, Effect, Reversal, Th
 from .errors import ERROR_INFO, SQUARENESS_IDS
 from .identify import Identification
 from .identify_system import SHARE_NAMED
-from .loop_compare import _held_out_group, _Trial
+from .loop_compare import Trial, held_out_group
 from .loop_judge import SET_UP_TIE
 from .loop_records import EffectKey, Finding, FloatArray, LoopOptions, effect_entry
-from .loop_state import _State
-from .loop_tester import _and, _exchange
+from .loop_state import State
+from .loop_tester import exchange, in_words
 from .separating import Separation, separating_lines
 
 #: A surface of another place is refitted as a kept one's possible rival where the diagnosis
-#: gives it at least this share of the kept one's gain (:func:`_untried_places`); so is a set-up
+#: gives it at least this share of the kept one's gain (:func:`untried_places`); so is a set-up
 #: error of another line (:func:`_untried_lines`).
 RIVAL_GAIN_SHARE = 0.95
 
 
-def _nearly_as_strong(finding: Finding, gain: float, options: LoopOptions) -> bool:
+def nearly_as_strong(finding: Finding, gain: float, options: LoopOptions) -> bool:
     """Whether ``finding`` passes the loop's false-alarm level with at least
     :data:`RIVAL_GAIN_SHARE` of ``gain``, a kept effect's: a possible rival of it."""
     return (
@@ -49,7 +49,7 @@ class Shared:
     count: int = 0
 
 
-def _shared(fit: Identification, index: int) -> Shared:
+def shared_of(fit: Identification, index: int) -> Shared:
     """:class:`Shared` of the fit's effect ``index``."""
     reduction = fit.system.reduction
     parts = [p for p in reduction.shared if p.effect == index] if reduction else []
@@ -67,7 +67,7 @@ def _shared(fit: Identification, index: int) -> Shared:
     return Shared(terms, errors, len(parts))
 
 
-def _shared_warnings(fit: Identification, shared: Sequence[Shared]) -> list[str]:
+def shared_warnings(fit: Identification, shared: Sequence[Shared]) -> list[str]:
     """A warning per kept effect of which a part reads on every line exactly as a change of the
     21 errors: the fit leaves that part to them, so the errors reported carry it."""
     out = []
@@ -81,13 +81,13 @@ def _shared_warnings(fit: Identification, shared: Sequence[Shared]) -> list[str]
         elif part.count == 1 and len(terms) == 1:
             what = f"its term {terms[0]} reads"
         elif part.count == 1:
-            what = f"a combination of its terms {_and(terms)} reads"
+            what = f"a combination of its terms {in_words(terms)} reads"
         else:
-            named = _and(terms) if len(terms) <= 4 else f"{len(terms)} of its terms"
+            named = in_words(terms) if len(terms) <= 4 else f"{len(terms)} of its terms"
             what = f"{part.count} combinations of {named} read"
         out.append(
             f"{effect.label}: {what} on every line measured exactly as a change of "
-            f"{_and(part.errors)} does, so this plan cannot tell the two apart: the fit leaves "
+            f"{in_words(part.errors)} does, so this plan cannot tell the two apart: the fit leaves "
             "it to those errors, and their reported values carry it. Lines that read those "
             "errors directly, or the same error at other offsets, would tell them apart"
         )
@@ -95,8 +95,8 @@ def _shared_warnings(fit: Identification, shared: Sequence[Shared]) -> list[str]
 
 
 class _Doubt(NamedTuple):
-    """What the plan leaves open about a kept effect (:func:`_alike`, :func:`_unsettled`,
-    :func:`_interchangeable`, :func:`_which_set_up`)."""
+    """What the plan leaves open about a kept effect (:func:`alike`, :func:`unsettled`,
+    :func:`interchangeable`, :func:`which_set_up`)."""
 
     #: the warning, or None when nothing is left open
     text: str | None
@@ -104,34 +104,34 @@ class _Doubt(NamedTuple):
     moves: FloatArray
     #: rivals of another place (a surface's direction and pair, a set-up's line or kind) that
     #: fit as well: each may be the effect the machine has
-    rivals: tuple[_Trial, ...] = ()
+    rivals: tuple[Trial, ...] = ()
     #: the move of a kept surface's own coefficients to the rival of its place whose move of
-    #: the 21 errors is taken (:func:`_unsettled`), None where there is none
+    #: the 21 errors is taken (:func:`unsettled`), None where there is none
     surface_move: FloatArray | None = None
     #: the lines the plan lacks on which the kept fit and its rivals read apart
     #: (:func:`~volucal.core.separating.separating_lines`), None where none reads two apart
     separation: Separation | None = None
 
 
-def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
+def alike(chosen: Trial, trials: list[Trial], tie: float) -> _Doubt:
     """A warning when the kept surface has rivals of another direction or pair of axes that
     predict the held-out data as well (within ``tie``), passing or refused only for showing on
     one line: the plan cannot tell which of them the machine has. Each trial's score is its
     cross-validated error over the readings its comparison with the step's model ran on.
 
-    Returned with it, as :func:`_interchangeable`, the differences of the errors' parameters to
+    Returned with it, as :func:`interchangeable`, the differences of the errors' parameters to
     every rival that moves an error fitted beside it by more than :data:`UNSETTLED_RATIO` of its
     stated standard uncertainties (one per row): each may be the machine's surface."""
     effect = chosen.finding.effect
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, CrossAxis):
         return _Doubt(None, delta)
-    place = _surface_place(effect)
+    place = surface_place(effect)
     rivals = _as_well(
         chosen,
         trials,
         tie,
-        lambda other: isinstance(other, CrossAxis) and _surface_place(other) != place,
+        lambda other: isinstance(other, CrossAxis) and surface_place(other) != place,
     )
     if not rivals:
         return _Doubt(None, delta)
@@ -155,12 +155,12 @@ def _alike(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
 
 
 def _as_well(
-    chosen: _Trial,
-    trials: list[_Trial],
+    chosen: Trial,
+    trials: list[Trial],
     tie: float,
     admits: Callable[[Effect], bool],
     by_lines: bool = False,
-) -> list[_Trial]:
+) -> list[Trial]:
     """The trials other than ``chosen`` whose effect ``admits`` accepts, that pass or are refused
     only for showing on one line, and predict the held-out data as well (within ``tie``), best
     first; with ``by_lines``, every one the plan does not rank below ``chosen``
@@ -178,7 +178,7 @@ def _as_well(
     )
 
 
-def _rival_report(trial: _Trial) -> dict[str, object]:
+def rival_report(trial: Trial) -> dict[str, object]:
     """A rival of a kept effect as report.json lists it: its kind, axis, label and parameters
     as fitted in its trial, and its cross-validated RMS over the readings the step's candidates
     were ranked on (every line, angular readings on the displacement scale)."""
@@ -189,8 +189,8 @@ def _rival_report(trial: _Trial) -> dict[str, object]:
 
 
 def _rival_moves(
-    chosen: _Trial, rivals: list[_Trial]
-) -> tuple[_Trial, list[tuple[float, str, float]], FloatArray]:
+    chosen: Trial, rivals: list[Trial]
+) -> tuple[Trial, list[tuple[float, str, float]], FloatArray]:
     """How the rivals of the kept fit move the errors fitted beside it (:func:`_moved_errors`):
     the rival that moves one most, the errors it moves by more than :data:`UNSETTLED_RATIO` of
     their stated standard uncertainties (largest first), and the differences of the errors'
@@ -212,7 +212,7 @@ def _rival_moves(
 AGREE = "; the errors fitted beside them agree within their uncertainties"
 
 
-def _moves_said(trial: _Trial, beyond: list[tuple[float, str, float]], none_moved: str = "") -> str:
+def _moves_said(trial: Trial, beyond: list[tuple[float, str, float]], none_moved: str = "") -> str:
     """The clause of a warning that names the errors ``trial`` moves beyond their uncertainty
     (``none_moved`` when it moves none)."""
     if not beyond:
@@ -224,7 +224,7 @@ def _moves_said(trial: _Trial, beyond: list[tuple[float, str, float]], none_move
     )
 
 
-def _surface_place(effect: Effect) -> tuple[str, frozenset[str]] | None:
+def surface_place(effect: Effect) -> tuple[str, frozenset[str]] | None:
     """A surface's direction and pair of axes (None for any other effect)."""
     if not isinstance(effect, CrossAxis):
         return None
@@ -237,7 +237,7 @@ def _surface_place(effect: Effect) -> tuple[str, frozenset[str]] | None:
 UNSETTLED_RATIO = 3.0
 
 
-def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
+def unsettled(chosen: Trial, trials: list[Trial], tie: float) -> _Doubt:
     """What the kept surface's shape leaves open: its rivals of the same direction and pair
     (another order, with or without lever-arm terms) that pass and predict the held-out data as
     well (within ``tie``, or not worse by :func:`_worse_on_lines`) are fits the plan cannot rank
@@ -254,13 +254,13 @@ def _unsettled(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     delta = np.zeros_like(chosen.refit.model.parameters)
     if not isinstance(effect, CrossAxis):
         return _Doubt(None, delta)
-    place = _surface_place(effect)
+    place = surface_place(effect)
     rivals = [
         trial
         for trial in trials
         if trial is not chosen
         and trial.ok
-        and _surface_place(trial.finding.effect) == place
+        and surface_place(trial.finding.effect) == place
         and _not_ranked(trial, chosen, tie)
     ]
     if not rivals:
@@ -303,7 +303,7 @@ WORSE_T = 2.0
 NOT_RANKED_SHARE = 0.06
 
 
-def _worse_on_lines(trial: _Trial, chosen: _Trial) -> bool:
+def _worse_on_lines(trial: Trial, chosen: Trial) -> bool:
     """Whether ``trial`` predicts the held-out data worse than ``chosen``: by more than
     :data:`NOT_RANKED_SHARE` over all readings, or unit by unit, the mean over the units
     cross-validation held out (a line, or a block of a line's targets) of the excess of its
@@ -326,11 +326,11 @@ def _worse_on_lines(trial: _Trial, chosen: _Trial) -> bool:
     )
     blocks = chosen.cv.method.startswith("held-out blocks")
     unit = np.full(len(readings), -1, dtype=np.int64)
-    unit[rows] = _held_out_group(readings, rows, blocks)
+    unit[rows] = held_out_group(readings, rows, blocks)
     units = np.unique(unit[rows])
     if units.size < 3:
         return True
-    scale = _exchange(readings)
+    scale = exchange(readings)
     excess = np.array(
         [
             np.mean((trial.cv.residual[on] * scale[on]) ** 2)
@@ -342,13 +342,13 @@ def _worse_on_lines(trial: _Trial, chosen: _Trial) -> bool:
     return bool(np.mean(excess) > WORSE_T * spread)
 
 
-def _not_ranked(trial: _Trial, chosen: _Trial, tie: float) -> bool:
+def _not_ranked(trial: Trial, chosen: Trial, tie: float) -> bool:
     """Whether the plan does not rank ``trial`` below ``chosen``: it predicts the held-out data
     as well (within ``tie``), or worse over all but not unit by unit (:func:`_worse_on_lines`)."""
     return trial.ties(chosen, tie) or not _worse_on_lines(trial, chosen)
 
 
-def _kept_surface(trial: _Trial) -> tuple[CrossAxis, FloatArray]:
+def _kept_surface(trial: Trial) -> tuple[CrossAxis, FloatArray]:
     """The surface ``trial`` tested, and its fitted coefficients."""
     effect = trial.finding.effect
     assert isinstance(effect, CrossAxis)
@@ -356,9 +356,9 @@ def _kept_surface(trial: _Trial) -> tuple[CrossAxis, FloatArray]:
     return effect, trial.refit.effect_parameters[index]
 
 
-def _surface_move(chosen: _Trial, rival: _Trial) -> FloatArray | None:
+def _surface_move(chosen: Trial, rival: Trial) -> FloatArray | None:
     """How the kept surface's coefficients move to ``rival``'s (the rival whose 21 errors
-    :func:`_unsettled` takes the move of, so that both moves are one choice between two fits):
+    :func:`unsettled` takes the move of, so that both moves are one choice between two fits):
     the rival's surface least-squares in the kept one's terms over a grid of the pair's strokes.
     None where it does not move."""
     effect, values = _kept_surface(chosen)
@@ -371,10 +371,10 @@ def _surface_move(chosen: _Trial, rival: _Trial) -> FloatArray | None:
     return move if np.any(move) else None
 
 
-def _with_surface_doubt(fit: Identification, moves: dict[EffectKey, FloatArray]) -> Identification:
+def with_surface_doubt(fit: Identification, moves: dict[EffectKey, FloatArray]) -> Identification:
     """``fit`` with each kept surface's coefficient covariance widened by half the outer product
     of its move to its rival (:func:`_surface_move`), in its covariance and in the fit's normal
-    inverse alike, as :func:`_with_shape_doubt` widens the 21 errors'."""
+    inverse alike, as :func:`with_shape_doubt` widens the 21 errors'."""
     if not moves:
         return fit
     columns = [block.columns for block in fit.system.blocks if block.kind == "effect"]
@@ -403,14 +403,14 @@ def _chi2(fit: Identification) -> float:
     return float(np.sum((fit.residual / fit.readings.sigma) ** 2))
 
 
-def _interchangeable(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
+def interchangeable(chosen: Trial, trials: list[Trial], tie: float) -> _Doubt:
     """What a kept set-up effect (an Abbe offset, a cosine misalignment) leaves open: the same
     kind of effect on another line that passes and fits the readings identically (the plan's
     21 errors take up one line's set-up as readily as the other's: the lines are tied by the
     errors they read) or predicts the held-out data as well (within ``tie``). The held-out error
     cannot rank such rivals: removing either line frees the other's set-up too.
 
-    Returned as :func:`_unsettled`: a warning naming the lines, with the errors fitted beside the
+    Returned as :func:`unsettled`: a warning naming the lines, with the errors fitted beside the
     rival that moves them most where they differ by more than :data:`UNSETTLED_RATIO` stated
     standard uncertainties, and the differences of the errors' parameters to every rival that
     moves one so far (one per row: each line may be the one, and each moves other errors)."""
@@ -431,25 +431,25 @@ def _interchangeable(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt
     if not rivals:
         return _Doubt(None, delta)
     trial, beyond, deltas = _rival_moves(chosen, rivals)
-    lines = _and([t.finding.effect.line_name for t in rivals])  # type: ignore[attr-defined]
+    lines = in_words([t.finding.effect.line_name for t in rivals])  # type: ignore[attr-defined]
     said = _moves_said(trial, beyond, AGREE)
     text = (
         f"{effect.label} was kept, but the same on line{'s' if len(rivals) > 1 else ''} "
         f"{lines} fits the readings as well (cross-validated RMS {chosen.score:.4g} kept, "
-        f"{_and([f'{t.score:.4g}' for t in rivals])}): this plan cannot tell which line's "
+        f"{in_words([f'{t.score:.4g}' for t in rivals])}): this plan cannot tell which line's "
         f"set-up it is{said}. Check those lines' set-up, or measure them again"
     )
     return _Doubt(text, deltas, tuple(rivals))
 
 
-def _which_set_up(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
+def which_set_up(chosen: Trial, trials: list[Trial], tie: float) -> _Doubt:
     """What a kept set-up effect leaves open about its own line: the other set-up effect of the
     same line (a cosine misalignment for an Abbe offset, or the reverse) that passes and
     predicts the held-out data as well (within ``tie``). A line whose angular errors change
     nearly linearly along it reads a lever arm almost as a scale; the plan cannot tell whether
     its reflector sits off the beam or its beam is tilted.
 
-    Returned as :func:`_interchangeable`: a warning naming the rival, with the errors fitted
+    Returned as :func:`interchangeable`: a warning naming the rival, with the errors fitted
     beside it where they differ by more than :data:`UNSETTLED_RATIO` stated standard
     uncertainties, and the differences of the errors' parameters (one row, or none)."""
     effect = chosen.finding.effect
@@ -479,7 +479,7 @@ def _which_set_up(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     return _Doubt(text, deltas, tuple(rivals))
 
 
-def _set_up_or_machine(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
+def set_up_or_machine(chosen: Trial, trials: list[Trial], tie: float) -> _Doubt:
     """What a kept set-up effect leaves open when a machine effect explains its line as well: the
     machine effects that pass, or are refused only for showing on one line, and predict the
     held-out data as well (within ``tie``). A surface seen on one line alone takes any shape
@@ -489,13 +489,13 @@ def _set_up_or_machine(chosen: _Trial, trials: list[_Trial], tie: float) -> _Dou
     (blind 30100: a cosine error of x_linear kept, a drift of X 0.2 % behind). The tie rule keeps
     the set-up error for its fewer parameters, but the plan cannot rule the others out. Nor can
     it a rival that predicts worse over all but not line by line held out (:func:`_not_ranked`,
-    as :func:`_unsettled`'s): where one line alone shows the structure, the machine effect is
+    as :func:`unsettled`'s): where one line alone shows the structure, the machine effect is
     estimated held out that line from lines it barely reaches, and its excess sits on that one
     unit (blind 55102: a drift of X, 11.4 ppm/K over 0.35 K, τ 3.9 h, that only x_linear shows
     beyond the 21 errors; a cosine error of x_linear kept, the drift 1.7 % behind, fitted at
     4.0 ppm and τ 3.7 h, the truth 4.0 ppm and 3.9 h).
 
-    Returned as :func:`_interchangeable`: a warning naming them, the errors fitted beside the
+    Returned as :func:`interchangeable`: a warning naming them, the errors fitted beside the
     rival that moves them most where they differ by more than :data:`UNSETTLED_RATIO` stated
     standard uncertainties, and the differences of the errors' parameters to every rival that
     moves one so far (one per row); report.json names them as the kept effect's rivals."""
@@ -515,7 +515,7 @@ def _set_up_or_machine(chosen: _Trial, trials: list[_Trial], tie: float) -> _Dou
     return _Doubt(text, deltas, tuple(rivals))
 
 
-def _which_axis(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
+def which_axis(chosen: Trial, trials: list[Trial], tie: float) -> _Doubt:
     """What a kept drift leaves open about its axis: a drift of another axis, passing or refused
     only for showing on one line, that the plan does not rank below it (:func:`_not_ranked`).
     Where the lines that read the drift move two axes alike, either axis' scale drifting reads
@@ -523,7 +523,7 @@ def _which_axis(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     min, that only diag_xy_pp shows beyond the 21 errors; a drift of X was kept at 21 ppm and
     τ 56 min, the drift of Y 2.8 % behind and not worse line by line, and nothing said so).
 
-    Returned as :func:`_interchangeable`: a warning naming the rivals, the errors fitted beside
+    Returned as :func:`interchangeable`: a warning naming the rivals, the errors fitted beside
     the rival that moves them most where they differ by more than :data:`UNSETTLED_RATIO` stated
     standard uncertainties, and the differences of the errors' parameters to every rival that
     moves one so far (one per row); report.json names them as the kept drift's rivals."""
@@ -544,13 +544,13 @@ def _which_axis(chosen: _Trial, trials: list[_Trial], tie: float) -> _Doubt:
     axes = sorted({str(effect.axis), *(str(t.finding.effect.axis) for t in rivals)})
     text = (
         f"{_kept_but(chosen, rivals, tie)}: this plan cannot tell which axis' scale drifts"
-        f"{_moves_said(trial, beyond, AGREE)}. Lines along {_and(axes)} alone, measured while "
+        f"{_moves_said(trial, beyond, AGREE)}. Lines along {in_words(axes)} alone, measured while "
         "the drift changes, would tell them apart"
     )
     return _Doubt(text, deltas, tuple(rivals))
 
 
-def _kept_but(chosen: _Trial, rivals: list[_Trial], tie: float) -> str:
+def _kept_but(chosen: Trial, rivals: list[Trial], tie: float) -> str:
     """A doubt's warning up to what it leaves open: the kept effect, its rivals, none ranked below
     it (:func:`_not_ranked`), and their cross-validated errors beside its. They predict the
     held-out data "as well", unless one is worse over all by more than ``tie``."""
@@ -561,9 +561,9 @@ def _kept_but(chosen: _Trial, rivals: list[_Trial], tie: float) -> str:
     )
     return (
         f"{chosen.finding.effect.label} was kept, but "
-        f"{_and([t.finding.effect.label for t in rivals])} "
+        f"{in_words([t.finding.effect.label for t in rivals])} "
         f"predict{'s' if len(rivals) == 1 else ''} the held-out data {as_well} (cross-validated "
-        f"RMS {chosen.score:.4g} kept, {_and([f'{t.score:.4g}' for t in rivals])})"
+        f"RMS {chosen.score:.4g} kept, {in_words([f'{t.score:.4g}' for t in rivals])})"
     )
 
 
@@ -597,18 +597,18 @@ def _moved_errors(
     return out
 
 
-def _simplest_best(passing: list[_Trial], tie: float, margin: float) -> _Trial | None:
+def simplest_best(passing: list[Trial], tie: float, margin: float) -> Trial | None:
     """The candidate with the lowest cross-validated error; among those within ``tie`` of it, a
     physical effect before a finer function (short structure is the loop's to name, DESIGN.md:
     a bump a finer spline follows as well is still a bump), then the one that leaves the model
     the fewest effects, then the one that adds the fewest parameters (fitted and searched) to
     it: a drift driven by the logged temperature before one whose time constant had to be
     estimated, when both explain alike. A variant of a kept effect (a surface of another order,
-    a cycle's period refined, :func:`_with`) replaces it and claims nothing new of the machine:
+    a cycle's period refined, :func:`kept_with`) replaces it and claims nothing new of the machine:
     ranked on parameters alone, a second surface EZ over X×Y adding two fewer than the kept
     surface's next order was kept beside it, a second claim on Z where the machine had one
     (blind 51162). So a set-up error of one parameter that ties a variant of a kept surface
-    gives way to it, where beside a surface of a new place it is kept (:func:`_set_up_tied`).
+    gives way to it, where beside a surface of a new place it is kept (:func:`set_up_tied`).
 
     A richer variant of one structure (:func:`_richer`: a surface of higher order or with
     lever-arm terms, a position-dependent reversal, a drift whose time constant is estimated) is
@@ -632,28 +632,28 @@ def _simplest_best(passing: list[_Trial], tie: float, margin: float) -> _Trial |
         key=lambda t: (
             t.finding.effect.kind == "higher_order",
             len(t.refit.effects),
-            _model_terms(t.refit),
+            model_terms(t.refit),
             t.score,
         ),
     )
 
 
-def _richer(trial: _Trial, than: _Trial) -> bool:
+def _richer(trial: Trial, than: Trial) -> bool:
     """Whether ``trial`` is a richer variant of the structure ``than`` fits (more parameters): a
     surface of the same direction and pair of axes, or a reversal or a thermal drift of the same
     axis."""
     one, other = trial.finding.effect, than.finding.effect
     if isinstance(one, CrossAxis):
-        variant = isinstance(other, CrossAxis) and _surface_place(one) == _surface_place(other)
+        variant = isinstance(other, CrossAxis) and surface_place(one) == surface_place(other)
     else:
         variant = isinstance(one, (Reversal, ThermalDrift)) and (one.kind, one.axis) == (
             other.kind,
             other.axis,
         )
-    return variant and _complexity(trial) > _complexity(than)
+    return variant and complexity(trial) > complexity(than)
 
 
-def _kept_instead(chosen: _Trial, trial: _Trial, margin: float) -> str:
+def kept_instead(chosen: Trial, trial: Trial, margin: float) -> str:
     """The clause of a passing candidate's reason that names the one kept instead."""
     figures = (
         f"cross-validated RMS {chosen.score:.4g} against {trial.score:.4g} over the readings "
@@ -667,24 +667,25 @@ def _kept_instead(chosen: _Trial, trial: _Trial, margin: float) -> str:
     )
 
 
-def _complexity(trial: _Trial) -> int:
-    return _terms(trial.finding.effect, trial.refit)
+def complexity(trial: Trial) -> int:
+    return effect_terms(trial.finding.effect, trial.refit)
 
 
-def _model_terms(fit: Identification) -> int:
-    """How many parameters the effects of ``fit`` have together (:func:`_terms`). The candidates
-    of a step all start from the same kept effects, so this orders them by what each adds."""
+def model_terms(fit: Identification) -> int:
+    """How many parameters the effects of ``fit`` have together (:func:`effect_terms`). The
+    candidates of a step all start from the same kept effects, so this orders them by what each
+    adds."""
     fitted = sum(int(values.size) for values in fit.effect_parameters)
     return fitted + sum(effect.searched for effect in fit.effects)
 
 
-def _terms(effect: Effect, fit: Identification) -> int:
+def effect_terms(effect: Effect, fit: Identification) -> int:
     """How many parameters ``effect`` has in ``fit``: fitted, and searched (a period, a τ)."""
     index = list(fit.effects).index(effect)
     return int(fit.effect_parameters[index].size) + effect.searched
 
 
-def _other_kinds(proposals: list[Finding], tried: list[_Trial], count: int) -> list[Finding]:
+def other_kinds(proposals: list[Finding], tried: list[Trial], count: int) -> list[Finding]:
     """The strongest proposal of each kind of machine effect no refit of this step has tried,
     up to ``count``. A set-up effect (an Abbe offset, a cosine error) is refitted only among the
     strongest: one line's set-up takes whatever that line alone shows, an effect outside the
@@ -701,7 +702,7 @@ def _other_kinds(proposals: list[Finding], tried: list[_Trial], count: int) -> l
     return out
 
 
-def _set_up_tied(proposals: list[Finding], batch: list[Finding], strongest: float) -> list[Finding]:
+def set_up_tied(proposals: list[Finding], batch: list[Finding], strongest: float) -> list[Finding]:
     """When surfaces alone fill ``batch``: the strongest set-up effect outside it whose gain
     ties the strongest proposal's (:data:`SET_UP_TIE`), as a list of at most one. Where one line
     alone shows what is left, a surface fits it at every direction and pair alike and those
@@ -720,11 +721,11 @@ def _set_up_tied(proposals: list[Finding], batch: list[Finding], strongest: floa
     return []
 
 
-def _owed(state: _State, finding: Finding, beside: frozenset[EffectKey]) -> bool:
+def owed_refit(state: State, finding: Finding, beside: frozenset[EffectKey]) -> bool:
     """Whether ``finding`` is owed a refit: refused for what an effect then missing spoils (a size
     that varied, :data:`SPOILED_BY_THE_REST`, a set-up error too large or short of the margin
-    without its neighbour, :func:`_set_up_spoiled_by_the_rest`, or a surface's gain on lines it left
-    systematic, :func:`_gained_through_lines_it_leaves`: blind 45093, a surface EX over X×Z refused
+    without its neighbour, :func:`set_up_spoiled_by_the_rest`, or a surface's gain on lines it left
+    systematic, :func:`gained_through_lines_it_leaves`: blind 45093, a surface EX over X×Z refused
     while a local defect of Z, still missing, left five lines systematic), or taken out by the
     final audit (it waits till then), and another effect kept since. It joins the next step's
     first batch whatever the diagnosis now says of it: the diagnosis holds the kept effects'
@@ -736,11 +737,11 @@ def _owed(state: _State, finding: Finding, beside: frozenset[EffectKey]) -> bool
 
 
 #: Refusals of a set-up effect that what the model still lacks beside it may cause
-#: (:func:`_set_up_spoiled_by_the_rest`).
+#: (:func:`set_up_spoiled_by_the_rest`).
 SET_UP_SPOILED_BY_THE_REST = ("implausible", "below margin")
 
 
-def _set_up_spoiled_by_the_rest(trial: _Trial) -> bool:
+def set_up_spoiled_by_the_rest(trial: Trial) -> bool:
     """Whether ``trial`` refused a set-up effect (Abbe offset, cosine misalignment) as
     implausible, or as short of the margin: the machine effect the model still lacks beside it
     inflates its size as much as its own error does (a surface that tilts the line reads as a
@@ -753,7 +754,7 @@ def _set_up_spoiled_by_the_rest(trial: _Trial) -> bool:
     )
 
 
-def _distinct(findings: list[Finding]) -> list[Finding]:
+def distinct(findings: list[Finding]) -> list[Finding]:
     """The findings less those that describe the same structure as a stronger one: cycles on
     one axis whose periods differ by less than 1 % (the lead and the periodogram's peak)."""
     out: list[Finding] = []

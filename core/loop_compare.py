@@ -21,7 +21,7 @@ from .identify import (
     residual_rms,
 )
 from .loop_records import ESTIMATED_AGAIN, Finding, IntArray, LoopOptions, Step, group_rms
-from .loop_tester import _rms
+from .loop_tester import rms_over
 from .machine import Machine
 from .measurement import Measurement
 from .progress import CancelToken, check
@@ -34,7 +34,9 @@ from .readings import Readings, flatten
 WILD_BLOCK_FACTOR = 25.0
 
 
-def _predicted(reference: CrossValidation, fit: Identification) -> tuple[NDArray[np.bool_], int]:
+def predicted_rows(
+    reference: CrossValidation, fit: Identification
+) -> tuple[NDArray[np.bool_], int]:
     """Per reading, whether its cross-validated residual is a prediction, and how many held-out
     blocks (or lines) are not. Held out in blocks, a line's end targets never are. A held-out
     block or line whose cross-validated mean square exceeds :data:`WILD_BLOCK_FACTOR` times what
@@ -54,7 +56,7 @@ def _predicted(reference: CrossValidation, fit: Identification) -> tuple[NDArray
         rows = np.flatnonzero(quantity & out)
         if rows.size == 0:
             continue
-        _, group = np.unique(_held_out_group(readings, rows, blocks), return_inverse=True)
+        _, group = np.unique(held_out_group(readings, rows, blocks), return_inverse=True)
         count = np.bincount(group).astype(float)
         held = np.bincount(group, reference.residual[rows] ** 2) / count
         in_sample = np.bincount(group, fit.residual[rows] ** 2) / count
@@ -64,34 +66,38 @@ def _predicted(reference: CrossValidation, fit: Identification) -> tuple[NDArray
     return out, wild
 
 
-def _compared(
+def cv_compared(
     reference: CrossValidation,
     other: CrossValidation,
     fit: Identification,
     um: bool = False,
     other_fit: Identification | None = None,
 ) -> tuple[float, float, int]:
-    """The cross-validated error of two fits over the same predicted readings (:func:`_predicted`),
-    and how many held-out blocks or lines were left out as wild. Each block or line is judged on
-    both fits (``fit`` that of ``reference``, ``other_fit`` that of ``other``): one that either
-    model needs to fix its own parameters, so that held out it is barely determined, is no
-    prediction of either (a bump whose only sight on a line is the block held out, the session's
-    first line once a drift in time is in the model). With ``um``, over the displacement readings
-    alone (µm, as report.json states it)."""
+    """The cross-validated error of two fits over the same predicted readings
+    (:func:`predicted_rows`), and how many held-out blocks or lines were left out as wild. Each
+    block or line is judged on both fits (``fit`` that of ``reference``, ``other_fit`` that of
+    ``other``): one that either model needs to fix its own parameters, so that held out it is
+    barely determined, is no prediction of either (a bump whose only sight on a line is the block
+    held out, the session's first line once a drift in time is in the model). With ``um``, over
+    the displacement readings alone (µm, as report.json states it)."""
     readings = fit.readings
-    rows, wild = _rows_compared(reference, other, fit, other_fit)
+    rows, wild = rows_compared(reference, other, fit, other_fit)
     if um:
         rows &= ~readings.is_angular
-    return _rms(reference.residual, readings, rows), _rms(other.residual, readings, rows), wild
+    return (
+        rms_over(reference.residual, readings, rows),
+        rms_over(other.residual, readings, rows),
+        wild,
+    )
 
 
-def _rows_compared(
+def rows_compared(
     reference: CrossValidation,
     other: CrossValidation,
     fit: Identification,
     other_fit: Identification | None,
 ) -> tuple[NDArray[np.bool_], int]:
-    """The readings :func:`_compared` compares two fits over, and how many held-out blocks or
+    """The readings :func:`cv_compared` compares two fits over, and how many held-out blocks or
     lines it leaves out.
 
     A block or line wild under one fit alone, whose held-out error there is still below the
@@ -99,13 +105,13 @@ def _rows_compared(
     that block better than the other even barely determined (blind 24020: held out, the
     session's first line, x_linear, is predicted to 0.67 µm RMS with a drift of X in the model
     and to 2.05 µm without it; left out, the drift earned 1.2 % and was refused)."""
-    rows, wild = _predicted(reference, fit)
+    rows, wild = predicted_rows(reference, fit)
     if other_fit is None:
         return rows, wild
-    theirs, _ = _predicted(other, other_fit)
+    theirs, _ = predicted_rows(other, other_fit)
     both = np.flatnonzero(np.isfinite(reference.residual) & np.isfinite(other.residual))
     blocks = reference.method.startswith("held-out blocks")
-    _, group = np.unique(_held_out_group(fit.readings, both, blocks), return_inverse=True)
+    _, group = np.unique(held_out_group(fit.readings, both, blocks), return_inverse=True)
     ours_tame = np.bincount(group, rows[both]) > 0
     theirs_tame = np.bincount(group, theirs[both]) > 0
     ours_ms = np.bincount(group, reference.residual[both] ** 2)
@@ -118,7 +124,7 @@ def _rows_compared(
     return out, int(np.count_nonzero(~compared))
 
 
-def _held_out_group(readings: Readings, rows: NDArray[np.generic], blocks: bool) -> IntArray:
+def held_out_group(readings: Readings, rows: NDArray[np.generic], blocks: bool) -> IntArray:
     """For the readings ``rows`` (a mask or indices), a key of what cross-validation held out
     together: the line, and with held-out blocks the block of targets."""
     key = readings.line[rows].astype(np.int64) * 1_000_000
@@ -128,7 +134,7 @@ def _held_out_group(readings: Readings, rows: NDArray[np.generic], blocks: bool)
 
 
 @dataclass(frozen=True, eq=False)
-class _Trial:
+class Trial:
     finding: Finding
     refit: Identification
     cv: CrossValidation
@@ -137,15 +143,15 @@ class _Trial:
     parameters: dict[str, object]
     uncorroborated: bool = False  # refused only because one line alone shows it
     #: its cross-validated error over the readings the comparison with the current model runs
-    #: on (:func:`_compared`, wild blocks left out); among the candidates of a step, over the
-    #: readings every one of them predicts (:func:`_on_common_rows`)
+    #: on (:func:`cv_compared`, wild blocks left out); among the candidates of a step, over the
+    #: readings every one of them predicts (:func:`on_common_rows`)
     score: float = float("nan")
     #: the rule that refused it (:data:`VERDICTS`), "kept" when it passed them all
     verdict: str = "kept"
     #: the readings its comparison with the current model ran on
     rows: NDArray[np.bool_] | None = None
     #: for a surface refused as the disagreement of lines it leaves systematic
-    #: (:func:`_gained_through_lines_it_leaves`): those lines
+    #: (:func:`gained_through_lines_it_leaves`): those lines
     left: frozenset[str] = frozenset()
     #: for a machine effect refused as one line alone shows it: that line
     alone_on: str = ""
@@ -155,13 +161,13 @@ class _Trial:
     improvement: float = float("nan")
     improvement_over: str = ""
 
-    def ties(self, other: _Trial, tie: float) -> bool:
+    def ties(self, other: Trial, tie: float) -> bool:
         """Whether it predicts the held-out data as well as ``other``: its score within ``tie``
         (a share) above ``other``'s."""
         return self.score <= other.score * (1.0 + tie)
 
 
-class _Fitter:
+class Fitter:
     """Refits of one measurement with a set of effects, from the current model."""
 
     def __init__(
@@ -179,7 +185,7 @@ class _Fitter:
         self.redundant = redundant
         self.cancel = cancel
         self.loop_options = options
-        self._reduced: dict[frozenset[str], _Fitter | None] = {}
+        self._reduced: dict[frozenset[str], Fitter | None] = {}
         self._last: tuple[tuple[Effect, ...], tuple[Identification, CrossValidation]] | None = None
         self._moved: dict[Effect, Effect] = {}
 
@@ -226,7 +232,7 @@ class _Fitter:
             self._last = (key, self(effects, initial))
         return self._last[1]
 
-    def without(self, names: frozenset[str]) -> _Fitter | None:
+    def without(self, names: frozenset[str]) -> Fitter | None:
         """A fitter of the same session without the lines ``names`` (time still counted from
         the whole session's first reading); None where what is left cannot be cross-validated
         or identified."""
@@ -234,7 +240,7 @@ class _Fitter:
             self._reduced[names] = self._without(names)
         return self._reduced[names]
 
-    def _without(self, names: frozenset[str]) -> _Fitter | None:
+    def _without(self, names: frozenset[str]) -> Fitter | None:
         whole = self.measurement
         left = Measurement(
             whole.machine,
@@ -253,9 +259,9 @@ class _Fitter:
         except IdentificationError:
             return None
         redundant = base.identifiability.redundant_lines
-        if _can_cross_validate(readings, cross_validate(base.system, readings, redundant)):
+        if can_cross_validate(readings, cross_validate(base.system, readings, redundant)):
             return None
-        return _Fitter(left, readings, self.loop_options, redundant, self.cancel)
+        return Fitter(left, readings, self.loop_options, redundant, self.cancel)
 
     def moved(self, effects: Sequence[Effect]) -> list[Effect]:
         """``effects`` of the whole session for this fitter's lines: a set-up effect follows its
@@ -271,7 +277,7 @@ class _Fitter:
         return out
 
 
-def _can_cross_validate(readings: Readings, cv: CrossValidation) -> str | None:
+def can_cross_validate(readings: Readings, cv: CrossValidation) -> str | None:
     """Why the plan is too small to cross-validate, or None."""
     if cv.method == "leave-one-line-out":
         return None if len(readings.lines) >= 3 else "fewer than three lines"
@@ -284,7 +290,7 @@ def _can_cross_validate(readings: Readings, cv: CrossValidation) -> str | None:
     return None
 
 
-def _later_step(
+def later_step(
     number: int,
     effect: Effect,
     fitted: Identification,
@@ -306,13 +312,13 @@ def _later_step(
         "audit": ("final audit", "taken out"),
     }[stage]
     finding = Finding(effect, float("nan"), 0.0, 0, 0.0, 0.0, where)
-    trial = _Trial(finding, *trial_fit, kept, reason, parameters)
-    return _step(number, trial, kept, reason, *before, stage=stage, verdict=verdict)
+    trial = Trial(finding, *trial_fit, kept, reason, parameters)
+    return step_record(number, trial, kept, reason, *before, stage=stage, verdict=verdict)
 
 
-def _step(
+def step_record(
     number: int,
-    trial: _Trial,
+    trial: Trial,
     kept: bool,
     reason: str,
     current: Identification,
@@ -327,7 +333,7 @@ def _step(
         reason,
         residual_rms(current)[0],
         residual_rms(trial.refit)[0],
-        *_compared(cv, trial.cv, current, um=True, other_fit=trial.refit)[:2],
+        *cv_compared(cv, trial.cv, current, um=True, other_fit=trial.refit)[:2],
         trial.parameters,
         group_rms(current),
         group_rms(trial.refit),
@@ -339,7 +345,7 @@ def _step(
     )
 
 
-def _with(kept: list[Effect], effect: Effect, machine: Machine) -> list[Effect]:
+def kept_with(kept: list[Effect], effect: Effect, machine: Machine) -> list[Effect]:
     """Kept effects plus a new one. The new one replaces a kept effect that describes the same
     structure: a position-dependent reversal the constant one, a cross-axis surface of another
     order or family the one kept for the same direction and axes, and a cycle the one kept on the

@@ -11,16 +11,16 @@ from scipy import special
 
 from .effects import Effect, ThermalDrift
 from .identify import Identification
-from .loop_compare import _Trial
+from .loop_compare import Trial
 from .loop_records import FloatArray, IntArray
-from .loop_tester import _cell_key, _log10_text, _rms, _unit
+from .loop_tester import cell_key, line_unit, log10_text, rms_over
 from .machine import AXES, AXIS_INDEX
 from .measurement import Line, LineSpec
 from .readings import Readings
 
 #: Legendre orders (in time, within one line) of the course a line's residual is tested for
-#: (:func:`_course`; a drift's course, :func:`_off_course`; a line's scale,
-#: :func:`_scales_in_time`, :func:`_settling_lines`).
+#: (:func:`_course`; a drift's course, :func:`off_course`; a line's scale,
+#: :func:`scales_in_time`, :func:`settling_lines`).
 COURSE_ORDERS = 3
 
 
@@ -50,22 +50,22 @@ def _course(fit: Identification, line: int, along: FloatArray, settling: bool) -
     (:data:`COURSE_TAUS_S`), which it must then beat."""
     readings = fit.readings
     rows = np.flatnonzero(readings.line == line)
-    _, cell = np.unique(_cell_key(readings, line), return_inverse=True)
+    _, cell = np.unique(cell_key(readings, line), return_inverse=True)
     counts = np.bincount(cell)
     dof = rows.size - counts.size - COURSE_ORDERS - int(settling)
     if dof <= 0:
         return None
     t = readings.time_s[rows]
     x = 2.0 * (t - t.min()) / max(float(t.max() - t.min()), 1e-9) - 1.0
-    y = _centred(cell, counts, fit.residual[rows])
+    y = cell_centred(cell, counts, fit.residual[rows])
     columns = [
-        _centred(cell, counts, along * special.eval_legendre(k, x))
+        cell_centred(cell, counts, along * special.eval_legendre(k, x))
         for k in range(1, COURSE_ORDERS + 1)
     ]
     settled, settling_tau = 0.0, float("nan")
     if settling:
         raw = [along * (t if np.isinf(tau) else -np.expm1(-t / tau)) for tau in COURSE_TAUS_S]
-        courses = [_centred(cell, counts, v) for v in raw]
+        courses = [cell_centred(cell, counts, v) for v in raw]
         # a course the cell means take up whole (τ far shorter than the line) is left out: what
         # rounding leaves of it is no column
         gains = [
@@ -88,25 +88,25 @@ def _course(fit: Identification, line: int, along: FloatArray, settling: bool) -
 
 
 #: A set-up effect is a scale of its line where at least this share of what it adds along the
-#: line is a straight line in the distance along it (:func:`_scale_in_time`).
+#: line is a straight line in the distance along it (:func:`scale_in_time`).
 SCALE_SHARE = 0.8
 
 
-def _moved(spec: LineSpec) -> list[str]:
+def moved_axes(spec: LineSpec) -> list[str]:
     """The axes a line moves."""
     return [axis for axis in AXES if abs(spec.direction[AXIS_INDEX[axis]]) > 1e-6]
 
 
-def _moving_one_axis(readings: Readings) -> list[tuple[int, str]]:
+def moving_one_axis(readings: Readings) -> list[tuple[int, str]]:
     """The linear lines that move one axis alone: (line index, axis)."""
     return [
-        (index, _moved(line.spec)[0])
+        (index, moved_axes(line.spec)[0])
         for index, line in enumerate(readings.lines)
-        if line.spec.quantity == "linear" and len(_moved(line.spec)) == 1
+        if line.spec.quantity == "linear" and len(moved_axes(line.spec)) == 1
     ]
 
 
-def _scales_in_time(fit: Identification, alpha: float) -> dict[int, tuple[str, float, float, int]]:
+def scales_in_time(fit: Identification, alpha: float) -> dict[int, tuple[str, float, float, int]]:
     """Linear lines moving one axis alone whose scale changes in time beyond what ``fit``
     holds: what the fit leaves follows the distance along the line times a course in the line's
     time (:func:`_course`, Bonferroni over those lines, at ``alpha``), or the lines of one axis
@@ -119,7 +119,7 @@ def _scales_in_time(fit: Identification, alpha: float) -> dict[int, tuple[str, f
     index: the axis, the false-alarm level (the line's, or its axis' lines' together), the
     course's RMS (µm), and how many lines that level combines (1: the line alone)."""
     readings = fit.readings
-    alone = _moving_one_axis(readings)
+    alone = moving_one_axis(readings)
     out: dict[int, tuple[str, float, float, int]] = {}
     by_axis: dict[str, list[tuple[int, _Course]]] = {}
     for index, axis in alone:
@@ -139,16 +139,16 @@ def _scales_in_time(fit: Identification, alpha: float) -> dict[int, tuple[str, f
     return out
 
 
-#: A line of an axis whose lines together follow a course in time (:func:`_scales_in_time`)
+#: A line of an axis whose lines together follow a course in time (:func:`scales_in_time`)
 #: counts as one that does where its own test is at this false-alarm level or below.
 COMBINED_LINE_LEVEL = 0.01
 
 
-def _unsteady_scales(
+def unsteady_scales(
     fit: Identification, moving: dict[int, tuple[str, float, float, int]]
 ) -> dict[str, tuple[float, Line, float, int]]:
     """Axes whose scale changes in time beyond what ``fit`` holds (``moving``, from
-    :func:`_scales_in_time`). Per axis: the false-alarm level, the line, the course's RMS
+    :func:`scales_in_time`). Per axis: the false-alarm level, the line, the course's RMS
     (µm) of its most significant line, and how many lines that level combines."""
     out: dict[str, tuple[float, Line, float, int]] = {}
     for index, (axis, p, swing, lines) in moving.items():
@@ -157,10 +157,10 @@ def _unsteady_scales(
     return out
 
 
-def _settling_lines(
+def settling_lines(
     fit: Identification, moving: dict[int, tuple[str, float, float, int]], alpha: float
 ) -> dict[int, float]:
-    """The lines of ``moving`` (:func:`_scales_in_time`) whose scale settles in time: the course
+    """The lines of ``moving`` (:func:`scales_in_time`) whose scale settles in time: the course
     they follow is one a settling course (1 − e^(−t/τ), or a straight line in time) takes,
     nothing further following beside it at ``alpha``. A drift that such a line alone shows
     (read before the structure settled) is missing there, and it spoils the size of every other
@@ -180,17 +180,17 @@ def _settling_lines(
 
 
 #: A settling course has settled after this many of its time constants (e⁻⁵: 0.7 % of its
-#: change is still to come; :func:`_settled_at`).
+#: change is still to come; :func:`settled_scale_at`).
 SETTLED_TAUS = 5.0
 
 
-def _settled_at(
+def settled_scale_at(
     fit: Identification,
     moving: dict[int, tuple[str, float, float, int]],
     settling: dict[int, float],
 ) -> dict[str, float]:
     """Per axis whose every line that changes in time (``moving``) does so on its own test and
-    follows a settling course at a time constant found (``settling``, :func:`_settling_lines`):
+    follows a settling course at a time constant found (``settling``, :func:`settling_lines`):
     the session time (s) after which its scale stood still, the later of :data:`SETTLED_TAUS` of
     the longest of those time constants after the session's first reading (the settling course
     runs from there) and the last reading of every line that changes (the change is seen up to
@@ -205,7 +205,7 @@ def _settled_at(
     return {axis: max(times) for axis, times in until.items() if all(np.isfinite(times))}
 
 
-def _scale_in_time(
+def scale_in_time(
     current: Identification,
     effect: Effect,
     contribution: FloatArray,
@@ -214,7 +214,7 @@ def _scale_in_time(
 ) -> str | None:
     """Why a kept set-up effect of a linear line is taken out by the audit: with every kept
     effect in ``current``, an axis the line moves changes its scale in time beyond what the
-    model holds (``unsteady``, :func:`_unsteady_scales`), and what the set-up adds along its line
+    model holds (``unsteady``, :func:`unsteady_scales`), and what the set-up adds along its line
     (``contribution``) is mostly a scale of the line (:data:`SCALE_SHARE`).
 
     A line measured while the axis' scale stood off its mean reads that scale, locked to the
@@ -226,7 +226,7 @@ def _scale_in_time(
     too, until it is kept: judged at a step, the right offsets of blind 38111 and 38167 were
     refused while their drifts were missing or not yet placed at their time constants.
 
-    An axis whose changing lines all settle, by a time (``settled_at``, :func:`_settled_at`)
+    An axis whose changing lines all settle, by a time (``settled_at``, :func:`settled_scale_at`)
     before the line's first reading, had stopped changing when the line was measured, by the
     settling course those lines follow: its change is no reason against the set-up. Indep.
     5100126 (a drift of X of τ 20 min that x_linear alone shows, 0–23 min into the session,
@@ -242,7 +242,7 @@ def _scale_in_time(
     start = float(readings.time_s[rows].min())
     axes = [
         axis
-        for axis in _moved(line.spec)
+        for axis in moved_axes(line.spec)
         if axis in unsteady and start < settled_at.get(axis, np.inf)
     ]
     if not axes:
@@ -266,12 +266,12 @@ def _scale_in_time(
     return (
         f"the {axis} scale changes in time: line {by.name}, which moves {axis} alone, follows "
         f"its distance times a course in time ({swing:.3g} µm RMS; {test}, log10 false alarm "
-        f"{_log10_text(p)}), and what this adds to line {line.name} is {100 * share:.0f} % a "
+        f"{log10_text(p)}), and what this adds to line {line.name} is {100 * share:.0f} % a "
         f"scale of the line, which the {axis} scale at the line's own time cannot be told from"
     )
 
 
-def _off_course(fit: Identification, index: int, alpha: float) -> str | None:
+def off_course(fit: Identification, index: int, alpha: float) -> str | None:
     """Why a drift fitted in time (``fit``'s effect ``index``) is refused: on a line it acts on,
     what the model leaves follows the drift's shape along the line times a course in time that
     no settling structure takes.
@@ -300,18 +300,18 @@ def _off_course(fit: Identification, index: int, alpha: float) -> str | None:
     return (
         f"off its course in time: on line {line_of.name}, what the model leaves follows its shape "
         f"along the line times a course in time no settling structure takes ({swing:.3g} "
-        f"{_unit(line_of.spec)} RMS beyond the best exponential of the line's own; F test, log10 "
-        f"false alarm {_log10_text(p)}): a scale that changes in time other than as a structure "
-        "settles is not this effect; refused"
+        f"{line_unit(line_of.spec)} RMS beyond the best exponential of the line's own; F test, "
+        f"log10 false alarm {log10_text(p)}): a scale that changes in time other than as a "
+        "structure settles is not this effect; refused"
     )
 
 
-def _centred(cell: IntArray, counts: IntArray, values: FloatArray) -> FloatArray:
+def cell_centred(cell: IntArray, counts: IntArray, values: FloatArray) -> FloatArray:
     """``values`` less their mean over each ``cell`` (``counts`` readings each)."""
     return values - (np.bincount(cell, weights=values) / counts)[cell]
 
 
-def _on_common_rows(trials: list[_Trial]) -> list[_Trial]:
+def on_common_rows(trials: list[Trial]) -> list[Trial]:
     """``trials`` with the score of each that passed, or was refused only for showing on one
     line, taken over the readings all of those predict. Each candidate's own comparison leaves
     out the held-out lines or blocks its fit extrapolates wildly: ranked on their own rows, a
@@ -325,6 +325,6 @@ def _on_common_rows(trials: list[_Trial]) -> list[_Trial]:
     if not rows.any():
         return trials
     return [
-        replace(t, score=_rms(t.cv.residual, t.refit.readings, rows)) if t in ranked else t
+        replace(t, score=rms_over(t.cv.residual, t.refit.readings, rows)) if t in ranked else t
         for t in trials
     ]

@@ -12,18 +12,18 @@ from .effects import CrossAxis, Effect, ThermalDrift
 from .errors import AXIS_ERROR_IDS, ERROR_INFO, SQUARENESS_IDS, ErrorModel, gauge_null_space
 from .identify import CrossValidation, Identification, cross_validate, identify
 from .identify_system import Gauge
-from .loop_backward import _given_way
-from .loop_choice import _complexity, _kept_instead, _model_terms, _nearly_as_strong, _surface_place
-from .loop_compare import _compared, _Fitter, _predicted, _rows_compared, _Trial
-from .loop_courses import _on_common_rows
-from .loop_forward import EVERY_PLACE, PER_PLACE, _doubts, _tried, _untried_places
-from .loop_judge import BOTH_WAYS, SHOWN_SIGMA2, _earliest_along, _judge
+from .loop_backward import given_way
+from .loop_choice import complexity, kept_instead, model_terms, nearly_as_strong, surface_place
+from .loop_compare import Fitter, Trial, cv_compared, predicted_rows, rows_compared
+from .loop_courses import on_common_rows
+from .loop_forward import EVERY_PLACE, PER_PLACE, record_doubts, try_finding, untried_places
+from .loop_judge import BOTH_WAYS, SHOWN_SIGMA2, earliest_along, judge
 from .loop_records import EffectKey, Finding, FloatArray, LoopOptions, SpacingChoice, Step
-from .loop_refine import _refine, _without
+from .loop_refine import fit_without, refine_kept
 from .loop_search import diagnose
-from .loop_state import _Fork, _State
-from .loop_tester import _rms, _Tester
-from .loop_unexplained import _unexplained_lines
+from .loop_state import Fork, State
+from .loop_tester import Tester, rms_over
+from .loop_unexplained import unexplained_lines
 from .measurement import Measurement
 from .progress import CancelToken, ProgressCallback, check, report
 from .readings import Readings
@@ -32,17 +32,17 @@ from .readings import Readings
 STROKE_POINTS = 201
 
 
-def _surface_doubts_at_the_end(
-    state: _State,
-    fit: _Fitter,
+def surface_doubts_at_the_end(
+    state: State,
+    fit: Fitter,
     options: LoopOptions,
     base: Identification,
     cv_base: CrossValidation,
 ) -> None:
-    """Ask what the plan leaves open about each kept surface (:func:`_doubts`) again in the
+    """Ask what the plan leaves open about each kept surface (:func:`record_doubts`) again in the
     model the loop ends with: the surface judged against the rest without it, beside what
     predicted as well when it was kept and the other orders and places the diagnosis of that model
-    gives nearly its gain (:func:`_variants_of_place`, :func:`_untried_places`; at another
+    gives nearly its gain (:func:`_variants_of_place`, :func:`untried_places`; at another
     place the same order and shape first, then the strongest, :data:`PER_PLACE`), each
     refitted only to be named.
 
@@ -63,38 +63,38 @@ def _surface_doubts_at_the_end(
 
 
 def _surface_asked_again(
-    state: _State,
+    state: State,
     surface: CrossAxis,
-    fit: _Fitter,
+    fit: Fitter,
     options: LoopOptions,
     base: Identification,
     cv_base: CrossValidation,
 ) -> None:
-    """:func:`_surface_doubts_at_the_end` for one kept surface."""
+    """:func:`surface_doubts_at_the_end` for one kept surface."""
     rest = [e for e in state.kept if e is not surface]
     without, cv_without = (base, cv_base) if not rest else fit(rest, state.current.model)
     findings, _ = diagnose(without, [e.key for e in rest], options)
     own = next((f for f in findings if f.effect.key == surface.key), None)
     if own is None:  # the diagnosis proposes it at another order: its place's strongest
-        place = _surface_place(surface)
+        place = surface_place(surface)
         strongest = max(
-            (f.gain for f in findings if _surface_place(f.effect) == place), default=0.0
+            (f.gain for f in findings if surface_place(f.effect) == place), default=0.0
         )
         own = Finding(surface, float("nan"), 0.0, 0, 0.0, 0.0, "final model", strongest)
     own = replace(own, effect=surface)
-    chosen = _judge(own, without, cv_without, state.current, state.cv, options, fit)
+    chosen = judge(own, without, cv_without, state.current, state.cv, options, fit)
     # what predicted as well when it was kept, its other orders, then the other places
-    tried: dict[EffectKey, _Trial] = {surface.key: chosen}
+    tried: dict[EffectKey, Trial] = {surface.key: chosen}
 
-    def ask(finding: Finding) -> _Trial:
+    def ask(finding: Finding) -> Trial:
         key = finding.effect.key
         if key not in tried:
-            tried[key] = _tried(finding, fit, rest, without, cv_without, options)
+            tried[key] = try_finding(finding, fit, rest, without, cv_without, options)
         return tried[key]
 
     for finding in [*state.tied.get(surface.key, ()), *_variants_of_place(findings, own, options)]:
         ask(finding)
-    for orders in _untried_places(findings, [chosen], chosen, options, EVERY_PLACE):
+    for orders in untried_places(findings, [chosen], chosen, options, EVERY_PLACE):
         # the same shape at the other place and its strongest finding (often a higher order,
         # where the step's batch may have tried the same shape); the next order where one
         # swings implausibly
@@ -104,22 +104,22 @@ def _surface_asked_again(
             plausible += ask(finding).verdict != "implausible"
             if plausible == PER_PLACE:
                 break
-    trials = _on_common_rows(list(tried.values()))
+    trials = on_common_rows(list(tried.values()))
     chosen = trials[0]
     leaner, own = _leaner_place(chosen, trials, options.tie)
     if leaner is not chosen:
         _surface_swapped(state, chosen, leaner, own, without, cv_without)
         chosen = leaner
-    place = _surface_place(chosen.finding.effect)
+    place = surface_place(chosen.finding.effect)
     # another place that predicts better by more than the tie is not named (no refit of the
     # loop ranked the two); a richer order of its own place, refused for the margin, unsettles
-    # its shape (:func:`_unsettled`)
+    # its shape (:func:`unsettled`)
     better = chosen.score * (1.0 - options.tie)
-    asked = [t for t in trials if t.score >= better or _surface_place(t.finding.effect) == place]
-    _doubts(state, chosen, asked, options)
+    asked = [t for t in trials if t.score >= better or surface_place(t.finding.effect) == place]
+    record_doubts(state, chosen, asked, options)
 
 
-def _leaner_place(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[_Trial, int]:
+def _leaner_place(chosen: Trial, trials: list[Trial], tie: float) -> tuple[Trial, int]:
     """The surface kept in the final model in the place of the kept surface (``chosen``, judged
     there against the rest without it), and the fewest parameters of its own place's surfaces
     that predict the held-out data as well (within ``tie``): ``chosen``, unless a surface of
@@ -127,7 +127,7 @@ def _leaner_place(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[_Tr
     one of those; of several, the leanest, then the best.
 
     A step keeps what predicts best before the effects kept after it, with the fewest
-    parameters among those that tie (:func:`_simplest_best`); a surface of many terms may then
+    parameters among those that tie (:func:`simplest_best`); a surface of many terms may then
     hold what another effect, kept later, explains, and in the final model a leaner surface of
     another place predicts as well (blind 50099, direct plan: EY over Y×Z of order 8, 15 terms,
     kept at step 1 before the drift of X; in the final model the injected EX over X×Y with
@@ -136,10 +136,10 @@ def _leaner_place(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[_Tr
     kept place has as lean a variant that predicts as well, the plan tells the places apart no
     better than a step did, and the kept one stays (asked next for the smaller peak over the
     strokes, the machine's place was picked in 9 more blind and indep. scenarios and another
-    in 6, among them for peaks 0.5 % apart). The other stays named (:func:`_alike`)."""
+    in 6, among them for peaks 0.5 % apart). The other stays named (:func:`alike`)."""
     if not chosen.ok or not isinstance(chosen.finding.effect, CrossAxis):
         return chosen, 0
-    place = _surface_place(chosen.finding.effect)
+    place = surface_place(chosen.finding.effect)
     tied = [
         t
         for t in trials
@@ -149,17 +149,17 @@ def _leaner_place(chosen: _Trial, trials: list[_Trial], tie: float) -> tuple[_Tr
         and t.ties(chosen, tie)
     ]
     own = min(
-        [_complexity(chosen)]
-        + [_complexity(t) for t in tied if _surface_place(t.finding.effect) == place]
+        [complexity(chosen)]
+        + [complexity(t) for t in tied if surface_place(t.finding.effect) == place]
     )
-    leaner = [t for t in tied if _surface_place(t.finding.effect) != place and _complexity(t) < own]
-    return min(leaner, key=lambda t: (_complexity(t), t.score), default=chosen), own
+    leaner = [t for t in tied if surface_place(t.finding.effect) != place and complexity(t) < own]
+    return min(leaner, key=lambda t: (complexity(t), t.score), default=chosen), own
 
 
 def _surface_swapped(
-    state: _State,
-    chosen: _Trial,
-    leaner: _Trial,
+    state: State,
+    chosen: Trial,
+    leaner: Trial,
     own: int,
     without: Identification,
     cv_without: CrossValidation,
@@ -169,10 +169,10 @@ def _surface_swapped(
     surface, other = chosen.finding.effect, leaner.finding.effect
     reason = (
         f"in the final model {other.label} predicts the held-out data as well (cross-validated "
-        f"RMS {leaner.score:.4g} against {chosen.score:.4g}) with {_complexity(leaner)} "
+        f"RMS {leaner.score:.4g} against {chosen.score:.4g}) with {complexity(leaner)} "
         f"parameters, where no surface of its place that predicts as well has fewer than {own}"
     )
-    state.current, state.cv, state.kept = _given_way(
+    state.current, state.cv, state.kept = given_way(
         state.steps,
         state.number,
         surface,
@@ -199,24 +199,24 @@ def _variants_of_place(
     """The findings of a kept surface's direction and pair of axes at another order (or with or
     without lever-arm terms) with at least :data:`RIVAL_GAIN_SHARE` of its gain, strongest
     first, up to ``candidates_per_step``."""
-    place = _surface_place(own.effect)
+    place = surface_place(own.effect)
     return [
         f
         for f in findings
-        if _surface_place(f.effect) == place
+        if surface_place(f.effect) == place
         and f.effect.key != own.effect.key
-        and _nearly_as_strong(f, own.gain, options)
+        and nearly_as_strong(f, own.gain, options)
     ][: options.candidates_per_step]
 
 
-def _other_route(
-    state: _State,
-    rounds: Callable[[_State, ProgressCallback | None], None],
-    fit: _Fitter,
+def other_route(
+    state: State,
+    rounds: Callable[[State, ProgressCallback | None], None],
+    fit: Fitter,
     options: LoopOptions,
     progress: ProgressCallback | None,
     base: Identification,
-) -> _State:
+) -> State:
     """The loop again from the first step that kept a surface over a line's set-up error that
     passed every rule too (:func:`_passing_set_up`), with the set-up error kept there instead,
     and from the first step that kept a surface over its other family of as many terms that
@@ -235,7 +235,7 @@ def _other_route(
     the injected surface — and the cycle: 0.0836 µm, 8 parameters). Backward passes replace one
     effect at a time and cannot undo that."""
 
-    def route(fork: _Fork) -> _State:
+    def route(fork: Fork) -> State:
         """The loop's rounds run from ``fork``'s state with its other candidate kept at its
         step."""
         other, kept_there = fork.state, fork.other
@@ -244,7 +244,7 @@ def _other_route(
             _swapped(row, fork, options.margin) for row in rows
         ]
         kept = [e for e in kept_there.refit.effects if isinstance(e, Effect)]
-        other.current, other.cv, other.kept = _refine(
+        other.current, other.cv, other.kept = refine_kept(
             fit,
             kept_there.refit,
             kept_there.cv,
@@ -266,18 +266,18 @@ def _other_route(
     if state.fork is not None:
         chosen = _route_taken(state, route(state.fork), state.fork, options)
     if state.variant_fork is not None:
-        other = _other_route(route(state.variant_fork), rounds, fit, options, progress, base)
+        other = other_route(route(state.variant_fork), rounds, fit, options, progress, base)
         chosen = _route_taken(chosen, other, state.variant_fork, options)
     return chosen
 
 
-def _route_taken(state: _State, other: _State, fork: _Fork, options: LoopOptions) -> _State:
-    """Of ``state`` and ``other``, the route run from ``fork`` (:func:`_other_route`), the one
+def _route_taken(state: State, other: State, fork: Fork, options: LoopOptions) -> State:
+    """Of ``state`` and ``other``, the route run from ``fork`` (:func:`other_route`), the one
     the loop takes: ``other`` where it ends predicting the held-out data better by ``margin``,
     or as well (within ``tie``) with fewer parameters; the rows of the fork's step say both
     ends."""
-    ended, ended_other, _ = _compared(state.cv, other.cv, state.current, other_fit=other.current)
-    terms, terms_other = _model_terms(state.current), _model_terms(other.current)
+    ended, ended_other, _ = cv_compared(state.cv, other.cv, state.current, other_fit=other.current)
+    terms, terms_other = model_terms(state.current), model_terms(other.current)
     taken = ended_other < ended * (1.0 - options.margin) or (
         ended_other <= ended * (1.0 + options.tie) and terms_other < terms
     )
@@ -297,8 +297,8 @@ def _route_taken(state: _State, other: _State, fork: _Fork, options: LoopOptions
     return chosen
 
 
-def _swapped(row: Step, fork: _Fork, margin: float) -> Step:
-    """A row of the step another route forks at (:func:`_other_route`), with the fork's other
+def _swapped(row: Step, fork: Fork, margin: float) -> Step:
+    """A row of the step another route forks at (:func:`other_route`), with the fork's other
     candidate kept there in the surface's place."""
     effect = row.finding.effect
     if effect is fork.other.finding.effect:
@@ -310,19 +310,19 @@ def _swapped(row: Step, fork: _Fork, margin: float) -> Step:
         row,
         kept=False,
         verdict="another kept",
-        reason=f"{trial.reason}{_kept_instead(fork.other, trial, margin)}",
+        reason=f"{trial.reason}{kept_instead(fork.other, trial, margin)}",
     )
 
 
-def _time_constant_doubts(
-    fit: _Fitter,
+def time_constant_doubts(
+    fit: Fitter,
     current: Identification,
     kept: list[Effect],
     base: Identification,
     options: LoopOptions,
 ) -> tuple[list[FloatArray], dict[tuple[str, str | None, str], dict[str, object]], list[str]]:
     """Per kept drift whose time constant the loop searched: the moves of the 21 errors to the
-    refits at either end of τ's standard uncertainty, one per row (:func:`_with_shape_doubt`);
+    refits at either end of τ's standard uncertainty, one per row (:func:`with_shape_doubt`);
     by the drift's key, those ends and the drift's size there (for report.json); and a warning
     for each drift in time that one line alone shows.
 
@@ -343,15 +343,15 @@ def _time_constant_doubts(
     for effect in kept:
         if not isinstance(effect, ThermalDrift) or not effect.searched:
             continue
-        tester = _without(effect, kept, fit, current.model, base)
+        tester = fit_without(effect, kept, fit, current.model, base)
 
-        def gain(log_tau: float, effect: ThermalDrift = effect, tester: _Tester = tester) -> float:
+        def gain(log_tau: float, effect: ThermalDrift = effect, tester: Tester = tester) -> float:
             candidate = replace(effect, time_constant_s=float(np.exp(log_tau)))
             return tester.drop(candidate.design(tester.ident.readings, tester.ident.model))
 
         start = float(np.log(effect.time_constant_s))
         # one σ² of the final fit, in the units of the model without the drift
-        level = gain(start) - _Tester(current).sigma2 / max(tester.sigma2, 1e-300)
+        level = gain(start) - Tester(current).sigma2 / max(tester.sigma2, 1e-300)
         index = next(i for i, e in enumerate(current.effects) if e is effect)
         taus, sizes = [], []
         for limit in (low, high):
@@ -381,7 +381,7 @@ def _time_constant_doubts(
 def _one_line_drift(
     effect: ThermalDrift,
     values: FloatArray,
-    tester: _Tester,
+    tester: Tester,
     taus: Sequence[float],
     sizes: Sequence[float],
     options: LoopOptions,
@@ -399,7 +399,7 @@ def _one_line_drift(
     low = " (the shortest tried)" if np.isclose(taus[0], shortest) else ""
     high = " (the longest tried)" if np.isclose(taus[1], longest) else ""
     first = (
-        f", the first along {effect.axis}" if line == _earliest_along(effect.axis, readings) else ""
+        f", the first along {effect.axis}" if line == earliest_along(effect.axis, readings) else ""
     )
     return (
         f"the {effect.label} is shown by line {readings.lines[line].name} alone{first}: the axis "
@@ -424,7 +424,7 @@ def _where_below(gain: Callable[[float], float], level: float, start: float, lim
     return limit
 
 
-def _choose_spacing(
+def choose_spacing(
     measurement: Measurement,
     readings: Readings,
     options: LoopOptions,
@@ -437,7 +437,7 @@ def _choose_spacing(
     loop kept, predict the held-out readings best (DESIGN: the default basis is chosen by
     cross-validation), with its fit and cross-validation. ``fit`` and ``cv`` are the loop's
     final fit, at the identification's own spacing: the reference every other is compared with
-    over the readings both predict (:func:`_compared`), the same lines or blocks held out (the
+    over the readings both predict (:func:`cv_compared`), the same lines or blocks held out (the
     plan's ``redundant`` lines decide which).
 
     A finer basis follows the guideways' shape more closely and the noise more; a coarser one
@@ -458,9 +458,9 @@ def _choose_spacing(
     effects = list(fit.effects)
     identify_options = replace(options.identify, redundancy=False)
     displacement = ~readings.is_angular
-    rows, _ = _predicted(cv, fit)
-    um = {reference: _rms(cv.residual, readings, rows & displacement)}
-    rms = {reference: _rms(cv.residual, readings, rows)}
+    rows, _ = predicted_rows(cv, fit)
+    um = {reference: rms_over(cv.residual, readings, rows & displacement)}
+    rms = {reference: rms_over(cv.residual, readings, rows)}
     ratio = {reference: 1.0}
     fits = {reference: fit}
     coarser = sorted(s for s in set(options.spacings_mm) if s > reference)
@@ -475,18 +475,18 @@ def _choose_spacing(
             )
             trial_cv = cross_validate(trial.system, readings, redundant)
             fits[spacing_mm] = trial
-            # over the readings both predict (:func:`_compared`), on both scales
-            rows, _ = _rows_compared(cv, trial_cv, fit, trial)
-            mine = _rms(cv.residual, readings, rows)
-            rms[spacing_mm] = _rms(trial_cv.residual, readings, rows)
-            um[spacing_mm] = _rms(trial_cv.residual, readings, rows & displacement)
+            # over the readings both predict (:func:`cv_compared`), on both scales
+            rows, _ = rows_compared(cv, trial_cv, fit, trial)
+            mine = rms_over(cv.residual, readings, rows)
+            rms[spacing_mm] = rms_over(trial_cv.residual, readings, rows)
+            um[spacing_mm] = rms_over(trial_cv.residual, readings, rows & displacement)
             ratio[spacing_mm] = rms[spacing_mm] / mine if mine > 0 else np.inf
             if ratio[spacing_mm] >= best:
                 break
             best = ratio[spacing_mm]
     chosen, refused = reference, {}
     better = sorted((s for s in ratio if ratio[s] < 1.0), key=lambda s: ratio[s])
-    clean = _unexplained_lines(fit, cv, options.alpha) if better else set()
+    clean = unexplained_lines(fit, cv, options.alpha) if better else set()
     for spacing_mm in better:
         check(cancel)
         trial = identify(
@@ -497,13 +497,13 @@ def _choose_spacing(
             cancel=cancel,
         )
         trial_cv = cross_validate(trial.system, readings, redundant)
-        left = _unexplained_lines(trial, trial_cv, options.alpha) - clean
+        left = unexplained_lines(trial, trial_cv, options.alpha) - clean
         if not left:
             fit, cv, chosen = trial, trial_cv, spacing_mm
             break
         refused[spacing_mm] = tuple(sorted(left))
     # spacings that predict as well (within the tie) are fits the plan cannot rank below the
-    # chosen one: their moves of the 21 errors widen its covariance (:func:`_with_shape_doubt`);
+    # chosen one: their moves of the 21 errors widen its covariance (:func:`with_shape_doubt`);
     # the finest spacing tried, where coarser than the chosen one, by what the chosen basis
     # misses of each function's shape against it (:func:`_shape_missed`) instead, not twice
     finest = min(fits)
@@ -514,7 +514,7 @@ def _choose_spacing(
         and s not in refused
         and (ratio[s] <= ratio[chosen] * (1.0 + options.tie) or um[s] < um[chosen])
     ]
-    moves = [_in_basis(r.model.parameters[None, :], r.model, fit.model)[0] for r in rivals]
+    moves = [in_basis(r.model.parameters[None, :], r.model, fit.model)[0] for r in rivals]
     doubt = np.reshape([m - fit.model.parameters for m in moves], (-1, fit.model.parameter_count))
     missed, missed_rms = (
         _shape_missed(fit, fits[finest]) if finest != chosen else (np.zeros((0, 0)), {})
@@ -585,7 +585,7 @@ def _shape_missed(
     return np.reshape(rows, (-1, model.parameter_count)), sizes
 
 
-def _in_basis(moves: FloatArray, old: ErrorModel, new: ErrorModel) -> FloatArray:
+def in_basis(moves: FloatArray, old: ErrorModel, new: ErrorModel) -> FloatArray:
     """Moves (rows) of ``old``'s parameters as the nearest moves of ``new``'s, whose functions
     have other bases: each function's change least-squares on a fine grid of its stroke within
     ``new``'s gauge, the squareness errors as they are. A move of a gauged fit is gauged, but
@@ -615,12 +615,12 @@ def _fit_in_gauge(model: ErrorModel, eid: str, q: FloatArray, values: FloatArray
     return null @ np.linalg.lstsq(basis.design(q) @ null, values, rcond=None)[0]
 
 
-def _with_shape_doubt(
+def with_shape_doubt(
     fit: Identification, deltas: Sequence[FloatArray], share: float = 0.5
 ) -> Identification:
     """``fit`` with the errors' covariance widened by ``share`` of the outer product of each
     move (one per row): by half, of a kept surface or set-up effect to a rival that fits as well
-    (:func:`_unsettled`, :func:`_alike`, :func:`_interchangeable`); in full, of a function by
+    (:func:`unsettled`, :func:`alike`, :func:`interchangeable`); in full, of a function by
     what its basis misses (:func:`_shape_missed`). In the model's parameters and in the fit's
     normal inverse alike (a refined function's covariance is made from the latter)."""
     moves = [move for d in deltas for move in np.atleast_2d(d) if np.any(move)]

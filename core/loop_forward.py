@@ -14,33 +14,33 @@ from .effects import AbbeOffset, Cosine, CrossAxis, Cyclic, Effect, LocalDefect,
 from .errors import ErrorModel
 from .identify import CrossValidation, Identification
 from .loop_choice import (
-    _alike,
-    _complexity,
-    _distinct,
-    _interchangeable,
-    _kept_instead,
-    _model_terms,
-    _nearly_as_strong,
-    _other_kinds,
-    _owed,
-    _rival_report,
-    _set_up_or_machine,
-    _set_up_spoiled_by_the_rest,
-    _set_up_tied,
-    _simplest_best,
-    _surface_place,
-    _unsettled,
-    _which_axis,
-    _which_set_up,
+    alike,
+    complexity,
+    distinct,
+    interchangeable,
+    kept_instead,
+    model_terms,
+    nearly_as_strong,
+    other_kinds,
+    owed_refit,
+    rival_report,
+    set_up_or_machine,
+    set_up_spoiled_by_the_rest,
+    set_up_tied,
+    simplest_best,
+    surface_place,
+    unsettled,
+    which_axis,
+    which_set_up,
 )
-from .loop_compare import _Fitter, _later_step, _step, _Trial, _with
-from .loop_courses import _on_common_rows
-from .loop_judge import PLACED_AGAIN, SPOILED_BY_THE_REST, TOGETHER, _judge
+from .loop_compare import Fitter, Trial, kept_with, later_step, step_record
+from .loop_courses import on_common_rows
+from .loop_judge import PLACED_AGAIN, SPOILED_BY_THE_REST, TOGETHER, judge
 from .loop_records import Finding, LoopOptions, Step
-from .loop_refine import _re_estimate, _refine, _searched_value, _without
-from .loop_search import _TauGrid, _time_constant_range, diagnose, narrow_bump
-from .loop_state import _Fork, _State
-from .loop_tester import _and, _noise_variance, _Tester
+from .loop_refine import fit_without, re_estimate, refine_kept, searched_value
+from .loop_search import TauGrid, diagnose, narrow_bump, time_constant_range
+from .loop_state import Fork, State
+from .loop_tester import Tester, in_words, noise_variance
 from .machine import Machine
 from .progress import CancelToken, ProgressCallback, check, report
 
@@ -50,15 +50,15 @@ from .progress import CancelToken, ProgressCallback, check, report
 AUDIT_ROUNDS = 2
 
 
-def _forward(
-    state: _State,
-    fit: _Fitter,
+def forward(
+    state: State,
+    fit: Fitter,
     options: LoopOptions,
     progress: ProgressCallback | None,
     cancel: CancelToken | None,
     base: Identification,
 ) -> None:
-    """Add effects one step at a time while one passes every rule (:func:`_judge`), continuing
+    """Add effects one step at a time while one passes every rule (:func:`judge`), continuing
     from ``state``; ``base`` is the fit of the 21 errors alone."""
     current, cv, kept, number = state.current, state.cv, state.kept, state.number
     steps, refused, aliased = state.steps, state.refused, state.aliased
@@ -69,8 +69,8 @@ def _forward(
         findings, step_warnings = diagnose(current, [e.key for e in kept], options)
         state.warnings += [w for w in step_warnings if w not in state.warnings]
         beside = frozenset(e.key for e in kept)
-        owed = [f for f in findings if _owed(state, f, beside)]
-        proposals = _distinct(
+        owed = [f for f in findings if owed_refit(state, f, beside)]
+        proposals = distinct(
             [
                 f
                 for f in findings
@@ -78,9 +78,9 @@ def _forward(
                 and f.f_statistic > options.retry_factor * refused.get(f.effect.key, 0.0)
             ]
         )
-        chosen: _Trial | None = None
+        chosen: Trial | None = None
         tried = 0
-        tried_this_step: list[_Trial] = []
+        tried_this_step: list[Trial] = []
         while (proposals or owed) and chosen is None and tried < options.max_refits_per_step:
             if not tried:
                 # refit the strongest few, but not those far weaker than the best: they are
@@ -91,39 +91,41 @@ def _forward(
                     for f in proposals[: options.candidates_per_step]
                     if f.gain >= options.contender_share * strongest
                 ]
-                batch += _set_up_tied(proposals, batch, strongest)
+                batch += set_up_tied(proposals, batch, strongest)
                 # refused while another effect was missing, that effect now kept
                 batch += [f for f in owed if f not in batch]
             else:
                 # the strongest were refused: the next variants of their structure mostly would
                 # be too, and a weaker effect of another kind behind them would end with the step
-                batch = _other_kinds(proposals, tried_this_step, options.candidates_per_step)
+                batch = other_kinds(proposals, tried_this_step, options.candidates_per_step)
             if not batch:
                 break
             proposals = [f for f in proposals if f not in batch]
-            trials = [_tried(f, fit, kept, current, cv, options) for f in batch]
+            trials = [try_finding(f, fit, kept, current, cv, options) for f in batch]
             leaner = _leaner_surfaces(trials, proposals, options.candidates_per_step)
             proposals = [f for f in proposals if f not in leaner]
             leaner += _narrow_instead(trials, current, kept, len(findings), options)
-            trials += [_tried(f, fit, kept, current, cv, options) for f in leaner]
+            trials += [try_finding(f, fit, kept, current, cv, options) for f in leaner]
             tried += len(trials)
-            tried_this_step = _on_common_rows(tried_this_step + trials)
+            tried_this_step = on_common_rows(tried_this_step + trials)
             trials = tried_this_step[-len(trials) :]
-            chosen = _simplest_best([t for t in trials if t.ok], options.tie, options.margin)
+            chosen = simplest_best([t for t in trials if t.ok], options.tie, options.margin)
             for trial in trials:
                 key = trial.finding.effect.key
                 if not trial.ok:
                     refused[key] = trial.finding.f_statistic
                     state.refused_beside.pop(key, None)
                 spoiled = trial.verdict in SPOILED_BY_THE_REST or trial.left
-                if spoiled or _set_up_spoiled_by_the_rest(trial):
+                if spoiled or set_up_spoiled_by_the_rest(trial):
                     state.refused_beside[key] = beside
                 reason, verdict = trial.reason, trial.verdict
                 if trial.ok and trial is not chosen and chosen is not None:
-                    reason += _kept_instead(chosen, trial, options.margin)
+                    reason += kept_instead(chosen, trial, options.margin)
                     verdict = "another kept"
                 steps.append(
-                    _step(number, trial, trial is chosen, reason, current, cv, verdict=verdict)
+                    step_record(
+                        number, trial, trial is chosen, reason, current, cv, verdict=verdict
+                    )
                 )
         groups = _handed_on(tried_this_step, fit, current, cv, kept, options)
         group = _handed_on_kept(groups, chosen, tried_this_step, options.tie)
@@ -133,7 +135,7 @@ def _forward(
                 for at, trial in enumerate(trials, first):
                     if trial.ok:
                         reason = f"{trial.reason}{_group_instead(group, trial)}"
-                        steps[at] = _step(
+                        steps[at] = step_record(
                             number, trial, False, reason, current, cv, verdict="another kept"
                         )
             lines = frozenset(t.finding.effect.line_name for t in group)  # type: ignore[attr-defined]
@@ -141,10 +143,10 @@ def _forward(
             for index, trial in enumerate(group):
                 reason = f"{trial.reason}; {_handed_on_text(trial, group, surface)}"
                 verdict = TOGETHER if len(group) > 1 else "kept"
-                steps.append(_step(number, trial, True, reason, current, cv, verdict=verdict))
+                steps.append(step_record(number, trial, True, reason, current, cv, verdict=verdict))
                 key = trial.finding.effect.key
                 rivals = [g[index] for g in groups if g[index].finding.effect.key != key]
-                _doubts(state, trial, _on_common_rows([trial, *rivals]), options)
+                record_doubts(state, trial, on_common_rows([trial, *rivals]), options)
             chosen = group[0]
         elif chosen is None:
             pairs = _set_up_pairs(tried_this_step, fit, current, cv, kept, options)
@@ -152,10 +154,12 @@ def _forward(
                 pair = min(pairs, key=lambda p: p[1].score)
                 for trial, partner in (pair, pair[::-1]):
                     reason = f"{trial.reason}; {_together(trial, partner)}"
-                    steps.append(_step(number, trial, True, reason, current, cv, verdict=TOGETHER))
+                    steps.append(
+                        step_record(number, trial, True, reason, current, cv, verdict=TOGETHER)
+                    )
                 # the partner's line: its Abbe offset or its cosine error, which the plan may
                 # not tell
-                _doubts(state, pair[1], [p[1] for p in pairs], options)
+                record_doubts(state, pair[1], [p[1] for p in pairs], options)
                 chosen = pair[0]
             else:
                 moved = _re_placed(tried_this_step, fit, current, cv, options)
@@ -185,18 +189,18 @@ def _forward(
                     )
             # rivals of a kept surface the step's batches left out: refitted to be named only
             extra = []
-            for orders in _untried_places(findings, tried_this_step, chosen, options):
+            for orders in untried_places(findings, tried_this_step, chosen, options):
                 for finding in orders:
-                    extra.append(_tried(finding, fit, kept, current, cv, options))
+                    extra.append(try_finding(finding, fit, kept, current, cv, options))
                     if extra[-1].verdict != "implausible":
                         break
             lines = [
-                _tried(finding, fit, kept, current, cv, options)
+                try_finding(finding, fit, kept, current, cv, options)
                 for finding in _untried_lines(findings, tried_this_step, chosen, options)
             ]
             if extra or lines:
                 at, ranked = tried_this_step.index(chosen), len(tried_this_step) + len(extra)
-                tried_this_step = _on_common_rows(tried_this_step + extra + lines)
+                tried_this_step = on_common_rows(tried_this_step + extra + lines)
                 chosen = tried_this_step[at]
                 # other lines' set-up errors are named where they fit as well, not where they
                 # predict better: no refit of the step ranked them against the kept one
@@ -204,7 +208,7 @@ def _forward(
                 tried_this_step = tried_this_step[:ranked] + [
                     t for t in tried_this_step[ranked:] if t.score >= better
                 ]
-            _doubts(state, chosen, tried_this_step, options)
+            record_doubts(state, chosen, tried_this_step, options)
         effect = chosen.finding.effect
         if chosen.finding.alias_mm:
             aliased[effect.axis] = chosen.finding.alias_mm  # type: ignore[index]
@@ -214,13 +218,13 @@ def _forward(
             aliased.pop(effect.axis, None)  # a new cycle of the axis, told from its aliases
         kept = list(chosen.refit.effects)  # type: ignore[arg-type]
         current, cv = chosen.refit, chosen.cv
-        current, cv, kept = _refine(fit, current, cv, kept, base, steps, number, options.alpha)
+        current, cv, kept = refine_kept(fit, current, cv, kept, base, steps, number, options.alpha)
     state.current, state.cv, state.kept, state.number = current, cv, kept, number
 
 
-def _passing_set_up(chosen: _Trial, tried: list[_Trial]) -> _Trial | None:
+def _passing_set_up(chosen: Trial, tried: list[Trial]) -> Trial | None:
     """Where a step keeps a surface: the best-predicting line's set-up error among the step's
-    candidates that passed every rule beside it, if any (the second route, :func:`_other_route`)."""
+    candidates that passed every rule beside it, if any (the second route, :func:`other_route`)."""
     if not isinstance(chosen.finding.effect, CrossAxis):
         return None
     set_ups = [
@@ -231,7 +235,7 @@ def _passing_set_up(chosen: _Trial, tried: list[_Trial]) -> _Trial | None:
     return min(set_ups, key=lambda t: t.score) if set_ups else None
 
 
-def _tied_variant(chosen: _Trial, tried: list[_Trial], tie: float) -> _Trial | None:
+def _tied_variant(chosen: Trial, tried: list[Trial], tie: float) -> Trial | None:
     """Where a step keeps a surface: the best-predicting other surface of its place that passed
     every rule with no more terms and within ``tie`` of it, if any.
 
@@ -244,7 +248,7 @@ def _tied_variant(chosen: _Trial, tried: list[_Trial], tie: float) -> _Trial | N
     has not was kept in its step, and the 4.4 mrad cosine error of y_lin_3 never showed; 0.0522
     µm held out with 15 parameters. From order 4 with lever-arm terms the loop keeps the Abbe
     offset and the cosine error: 0.0519 µm with 10). So the loop runs on from such a step both
-    ways (:func:`_other_route`)."""
+    ways (:func:`other_route`)."""
     effect = chosen.finding.effect
     if not isinstance(effect, CrossAxis):
         return None
@@ -254,30 +258,30 @@ def _tied_variant(chosen: _Trial, tried: list[_Trial], tie: float) -> _Trial | N
         if t.ok
         and t is not chosen
         and isinstance(t.finding.effect, CrossAxis)
-        and _surface_place(t.finding.effect) == _surface_place(effect)
-        and _complexity(t) <= _complexity(chosen)
+        and surface_place(t.finding.effect) == surface_place(effect)
+        and complexity(t) <= complexity(chosen)
         and t.ties(chosen, tie)
     ]
     return min(variants, key=lambda t: t.score) if variants else None
 
 
 def _fork_at(
-    state: _State,
-    chosen: _Trial,
-    other: _Trial,
-    tried: list[_Trial],
+    state: State,
+    chosen: Trial,
+    other: Trial,
+    tried: list[Trial],
     number: int,
     steps: list[Step],
     current: Identification,
     cv: CrossValidation,
     may_fork: bool = False,
-) -> _Fork:
-    """The fork another route starts from (:func:`_other_route`) where step ``number`` kept the
+) -> Fork:
+    """The fork another route starts from (:func:`other_route`) where step ``number`` kept the
     surface ``chosen`` and ``other`` passed every rule too (``tried``: every candidate the step
     refitted): the state as it stood before the step; the route may fork again at a set-up
     error where ``may_fork``."""
     first_row = next(i for i, row in enumerate(steps) if row.step == number)
-    before = _State(
+    before = State(
         current,
         cv,
         kept=[e for e in current.effects if isinstance(e, Effect)],
@@ -294,24 +298,24 @@ def _fork_at(
         may_fork=may_fork,
         may_fork_variant=False,
     )
-    return _Fork(number, first_row, chosen, other, tried, before)
+    return Fork(number, first_row, chosen, other, tried, before)
 
 
-def _tried(
+def try_finding(
     finding: Finding,
-    fit: _Fitter,
+    fit: Fitter,
     kept: list[Effect],
     current: Identification,
     cv: CrossValidation,
     options: LoopOptions,
-) -> _Trial:
+) -> Trial:
     """``finding``'s effect refitted beside the kept ones and judged against the current model;
     a kept drift's time constant placed again with it (:func:`_drifts_placed_beside`)."""
-    held = _with(kept, finding.effect, current.model.machine)
+    held = kept_with(kept, finding.effect, current.model.machine)
     effects = _drifts_placed_beside(held, finding.effect, fit, current.model, options)
-    trial = _judge(finding, current, cv, *fit(effects, current.model), options, fit)
+    trial = judge(finding, current, cv, *fit(effects, current.model), options, fit)
     moved = [
-        f"{old.label} {PLACED_AGAIN}: {_searched_value(old)} → {_searched_value(new)}"
+        f"{old.label} {PLACED_AGAIN}: {searched_value(old)} → {searched_value(new)}"
         for old, new in zip(held, effects, strict=True)
         if new is not old
     ]
@@ -321,13 +325,13 @@ def _tried(
 def _drifts_placed_beside(
     effects: list[Effect],
     candidate: Effect,
-    fit: _Fitter,
+    fit: Fitter,
     initial: ErrorModel,
     options: LoopOptions,
 ) -> list[Effect]:
     """``effects`` with each drift in time placed again, with ``candidate`` in the model, over
-    the range its τ was first searched in (:func:`_time_constant_range`),
-    where its best lies more than a factor e from the present τ (:func:`_refine` moves it
+    the range its τ was first searched in (:func:`time_constant_range`),
+    where its best lies more than a factor e from the present τ (:func:`refine_kept` moves it
     within that) and removes more than the ``alpha`` level of one degree of freedom beyond it.
     A drift read between two temperature logs keeps its τ.
 
@@ -344,17 +348,17 @@ def _drifts_placed_beside(
     for index, effect in enumerate(effects):
         if effect is candidate or not isinstance(effect, ThermalDrift) or effect.mode != "time":
             continue
-        tester = _without(effect, out, fit, initial, None)
-        low, high = _time_constant_range(options.time_constants_s, tester.ident.readings)
+        tester = fit_without(effect, out, fit, initial, None)
+        low, high = time_constant_range(options.time_constants_s, tester.ident.readings)
         if high <= low:
             continue
 
-        def gain(log_tau: float, effect: ThermalDrift = effect, tester: _Tester = tester) -> float:
+        def gain(log_tau: float, effect: ThermalDrift = effect, tester: Tester = tester) -> float:
             moved = replace(effect, time_constant_s=float(np.exp(log_tau)))
             return tester.drop(moved.design(tester.ident.readings, tester.ident.model))
 
         now = float(np.log(effect.time_constant_s))
-        grid = _TauGrid(gain, low, high)
+        grid = TauGrid(gain, low, high)
         if abs(grid.best - now) <= 1.0:
             continue
         placed = grid.refined()
@@ -364,14 +368,14 @@ def _drifts_placed_beside(
     return out
 
 
-def _refused_implausible(trials: list[_Trial]) -> _Trial | None:
+def _refused_implausible(trials: list[Trial]) -> Trial | None:
     """The batch's best-predicting trial when it was refused as implausible."""
     best = min(trials, key=lambda t: t.score, default=None)
     return best if best is not None and best.verdict == "implausible" else None
 
 
 def _narrow_instead(
-    trials: list[_Trial],
+    trials: list[Trial],
     current: Identification,
     kept: list[Effect],
     tested: int,
@@ -393,7 +397,7 @@ def _narrow_instead(
     return [found]
 
 
-def _leaner_surfaces(trials: list[_Trial], proposals: list[Finding], count: int) -> list[Finding]:
+def _leaner_surfaces(trials: list[Trial], proposals: list[Finding], count: int) -> list[Finding]:
     """When the batch's best-predicting trial is a surface refused as implausible: the
     proposals of the same direction and pair of axes at a lower order (or without lever-arm
     terms), strongest first, up to ``count``.
@@ -407,51 +411,51 @@ def _leaner_surfaces(trials: list[_Trial], proposals: list[Finding], count: int)
     effect = None if best is None else best.finding.effect
     if not isinstance(effect, CrossAxis):
         return []
-    place = _surface_place(effect)
+    place = surface_place(effect)
     out = [
         f
         for f in proposals
         if isinstance(f.effect, CrossAxis)
-        and _surface_place(f.effect) == place
+        and surface_place(f.effect) == place
         and (f.effect.order, f.effect.lever_terms) < (effect.order, effect.lever_terms)
     ]
     return out[:count]
 
 
 def _kept_re_placed(
-    moved: tuple[_Trial, Effect, Effect],
+    moved: tuple[Trial, Effect, Effect],
     number: int,
     current: Identification,
     cv: CrossValidation,
     steps: list[Step],
-) -> _Trial:
+) -> Trial:
     """Record a candidate kept with a kept effect estimated again beside it (:func:`_re_placed`):
     the candidate's row, then the kept effect's (stage ``refine``), both of the same refit."""
     chosen, old, new = moved
-    change = f"{_searched_value(old)} → {_searched_value(new)}"
+    change = f"{searched_value(old)} → {searched_value(new)}"
     reason = (
         f"{chosen.reason}; with the {old.label} estimated again beside it ({change}): where it "
         "was, it held part of this structure in its own shape"
     )
-    steps.append(_step(number, chosen, True, reason, current, cv))
+    steps.append(step_record(number, chosen, True, reason, current, cv))
     reason = (
         f"{old.label} estimated again with the {chosen.finding.effect.label} in the model: "
         f"{change}, kept in the same refit"
     )
     fitted = (chosen.refit, chosen.cv)
     steps.append(
-        _later_step(number, new, chosen.refit, fitted, True, reason, (current, cv), "refine")
+        later_step(number, new, chosen.refit, fitted, True, reason, (current, cv), "refine")
     )
     return chosen
 
 
 def _re_placed(
-    tried: list[_Trial],
-    fit: _Fitter,
+    tried: list[Trial],
+    fit: Fitter,
     current: Identification,
     cv: CrossValidation,
     options: LoopOptions,
-) -> tuple[_Trial, Effect, Effect] | None:
+) -> tuple[Trial, Effect, Effect] | None:
     """A candidate of the step refused for the margin alone that passes every rule once a kept
     effect's searched quantity (a drift's time constant, a cycle's period) is estimated again
     with it in the model: the trial, the kept effect as it was and as estimated again; None
@@ -466,22 +470,22 @@ def _re_placed(
     kept."""
     held = [t for t in tried if t.verdict == "below margin"]
     machine = current.model.machine
-    passing: list[tuple[_Trial, Effect, Effect]] = []
+    passing: list[tuple[Trial, Effect, Effect]] = []
     kept = [e for e in current.effects if isinstance(e, Effect)]
     for trial in held[: options.candidates_per_step]:
         candidate = trial.finding.effect
         # the kept effects as kept, not as the trial's refit may have placed a drift again
-        effects = _with(kept, candidate, machine)
-        sigma2 = _noise_variance(trial.refit)
+        effects = kept_with(kept, candidate, machine)
+        sigma2 = noise_variance(trial.refit)
         for effect in effects:
             if effect is candidate or not effect.searched:
                 continue
-            without = _without(effect, effects, fit, current.model, None)
-            better = _re_estimate(effect, without, machine, options.alpha, sigma2)
+            without = fit_without(effect, effects, fit, current.model, None)
+            better = re_estimate(effect, without, machine, options.alpha, sigma2)
             if better is None:
                 continue
             trial_effects = [better if e is effect else e for e in effects]
-            judged = _judge(
+            judged = judge(
                 trial.finding, current, cv, *fit(trial_effects, current.model), options, fit
             )
             if judged.ok:
@@ -491,19 +495,19 @@ def _re_placed(
     return min(passing, key=lambda p: p[0].score)
 
 
-def _doubts(state: _State, chosen: _Trial, trials: list[_Trial], options: LoopOptions) -> None:
+def record_doubts(state: State, chosen: Trial, trials: list[Trial], options: LoopOptions) -> None:
     """Record what the plan leaves open about a keep: its warnings, the moves of the errors to
     its rivals and the rivals report.json names, replacing what an earlier keep left open."""
     key = chosen.finding.effect.key
     doubts = [
         doubt(chosen, trials, options.tie)
         for doubt in (
-            _alike,
-            _unsettled,
-            _interchangeable,
-            _which_set_up,
-            _set_up_or_machine,
-            _which_axis,
+            alike,
+            unsettled,
+            interchangeable,
+            which_set_up,
+            set_up_or_machine,
+            which_axis,
         )
     ]
     state.shape_doubt[key] = np.vstack([np.atleast_2d(d.moves) for d in doubts])
@@ -512,7 +516,7 @@ def _doubts(state: _State, chosen: _Trial, trials: list[_Trial], options: LoopOp
     if moved:
         state.surface_doubt[key] = moved[0]
     state.ambiguous[key] = [d.text for d in doubts if d.text is not None]
-    named = [_rival_report(t) for d in doubts for t in d.rivals]
+    named = [rival_report(t) for d in doubts for t in d.rivals]
     state.tied[key] = [
         t.finding
         for t in trials
@@ -526,10 +530,10 @@ def _doubts(state: _State, chosen: _Trial, trials: list[_Trial], options: LoopOp
             state.rivals[key]["separated_by"] = separation.to_report()
 
 
-def _untried_places(
+def untried_places(
     findings: list[Finding],
-    tried: list[_Trial],
-    chosen: _Trial,
+    tried: list[Trial],
+    chosen: Trial,
     options: LoopOptions,
     count: int | None = None,
 ) -> list[list[Finding]]:
@@ -547,14 +551,14 @@ def _untried_places(
     effect = chosen.finding.effect
     if not isinstance(effect, CrossAxis):
         return []
-    seen = {_surface_place(t.finding.effect) for t in tried}
+    seen = {surface_place(t.finding.effect) for t in tried}
     places: dict[tuple[str, frozenset[str]], list[Finding]] = {}
     for finding in sorted(findings, key=lambda f: -f.gain):
-        place = _surface_place(finding.effect)
+        place = surface_place(finding.effect)
         if (
             place is None
             or place in seen
-            or not _nearly_as_strong(finding, chosen.finding.gain, options)
+            or not nearly_as_strong(finding, chosen.finding.gain, options)
         ):
             continue
         places.setdefault(place, []).append(finding)
@@ -562,12 +566,12 @@ def _untried_places(
 
 
 #: Every other place a surface can have: three directions over three pairs of axes, less its own
-#: (:func:`_surface_doubts_at_the_end` refits each that nearly ties it, only to name it).
+#: (:func:`surface_doubts_at_the_end` refits each that nearly ties it, only to name it).
 EVERY_PLACE = 8
 
 
 #: At most this many orders of another place are refitted as a kept surface's possible rivals in
-#: the final model, beside those refused as implausible (:func:`_surface_doubts_at_the_end`).
+#: the final model, beside those refused as implausible (:func:`surface_doubts_at_the_end`).
 PER_PLACE = 2
 
 
@@ -577,21 +581,21 @@ SET_UP_RIVALS = 8
 
 
 def _untried_lines(
-    findings: list[Finding], tried: list[_Trial], chosen: _Trial, options: LoopOptions
+    findings: list[Finding], tried: list[Trial], chosen: Trial, options: LoopOptions
 ) -> list[Finding]:
     """For a kept set-up error (an Abbe offset, a cosine error): the other kind of set-up error
     of its line and the same kind of error on each other line, where no refit of the step tried
     them and the diagnosis gives them nearly the chosen one's gain (at least
     :data:`RIVAL_GAIN_SHARE` of it), strongest first, the other lines up to
     :data:`SET_UP_RIVALS`. Lines the 21 errors tie together take one another's set-up error
-    alike: each is refitted, only so the report can name it (:func:`_interchangeable`). Blind
+    alike: each is refitted, only so the report can name it (:func:`interchangeable`). Blind
     50091, displacement-only plan: a cosine error of any of six lines (the three offset
     diagonals, y_lin_2, z_lin_2, z_lin_3) has the same gain to six figures; the first,
     diag_xy_pp_offset's, was kept beside three surfaces of the same gain, and the injected one,
     diag_yz_pp_offset's, was never named.
 
     The kept one's own line comes first: a line whose angular errors change nearly linearly
-    along it reads a lever arm almost as a scale (:func:`_which_set_up` names it). Blind 53140,
+    along it reads a lever arm almost as a scale (:func:`which_set_up` names it). Blind 53140,
     the plan of the demo: a reflector 58 mm off the beam of diag_xy_pp_b gains 1892 σ² against
     1900 for a cosine error of that line; the batch held the cosine error and two surfaces, and
     the offset was never refitted or named."""
@@ -605,7 +609,7 @@ def _untried_lines(
             for finding in findings
             if isinstance(finding.effect, (AbbeOffset, Cosine))
             and finding.effect.key not in seen
-            and _nearly_as_strong(finding, chosen.finding.gain, options)
+            and nearly_as_strong(finding, chosen.finding.gain, options)
         ),
         key=lambda f: -f.gain,
     )
@@ -615,13 +619,13 @@ def _untried_lines(
 
 
 def _set_up_pairs(
-    tried: list[_Trial],
-    fit: _Fitter,
+    tried: list[Trial],
+    fit: Fitter,
     current: Identification,
     cv: CrossValidation,
     kept: list[Effect],
     options: LoopOptions,
-) -> list[tuple[_Trial, _Trial]]:
+) -> list[tuple[Trial, Trial]]:
     """Two set-up errors that each fail alone but together pass every rule, as two trials of
     one refit, each judged against the current model on its own: those of two lines
     (:func:`_two_lines_set_ups`), else a line's Abbe offset and cosine error
@@ -630,13 +634,13 @@ def _set_up_pairs(
 
     def judged(
         candidates: list[tuple[Finding, Finding, list[Effect]]],
-    ) -> list[tuple[_Trial, _Trial]]:
+    ) -> list[tuple[Trial, Trial]]:
         pairs = []
         for first, second, effects in candidates:
             refit, cv_new = fit(effects, current.model)
             pair = (
-                _judge(first, current, cv, refit, cv_new, options),
-                _judge(second, current, cv, refit, cv_new, options),
+                judge(first, current, cv, refit, cv_new, options),
+                judge(second, current, cv, refit, cv_new, options),
             )
             if pair[0].ok and pair[1].ok:
                 pairs.append(pair)
@@ -646,12 +650,12 @@ def _set_up_pairs(
     pairs = judged(_two_lines_set_ups(tried, kept, machine, options)) or judged(
         _one_line_set_up(tried, kept, machine)
     )
-    partnered = _on_common_rows([p[1] for p in pairs])
+    partnered = on_common_rows([p[1] for p in pairs])
     return [(p[0], q) for p, q in zip(pairs, partnered, strict=True)]
 
 
 def _two_lines_set_ups(
-    tried: list[_Trial], kept: list[Effect], machine: Machine, options: LoopOptions
+    tried: list[Trial], kept: list[Effect], machine: Machine, options: LoopOptions
 ) -> list[tuple[Finding, Finding, list[Effect]]]:
     """Set-up errors of two lines to refit together (:func:`_set_up_pairs`): one pair per set-up
     of the second line (none, one or two), with the effects of its refit.
@@ -682,7 +686,11 @@ def _two_lines_set_ups(
         return []
     partners = [f for f in others if f.effect.line_index == others[0].effect.line_index]
     return [
-        (first.finding, f, _with(_with(kept, first.finding.effect, machine), f.effect, machine))
+        (
+            first.finding,
+            f,
+            kept_with(kept_with(kept, first.finding.effect, machine), f.effect, machine),
+        )
         for f in partners
     ]
 
@@ -694,7 +702,7 @@ SPOILED_BY_ITS_PARTNER = ("implausible", "uneven along its line", "below margin"
 
 
 def _one_line_set_up(
-    tried: list[_Trial], kept: list[Effect], machine: Machine
+    tried: list[Trial], kept: list[Effect], machine: Machine
 ) -> list[tuple[Finding, Finding, list[Effect]]]:
     """A line's Abbe offset and its cosine error to refit together (:func:`_set_up_pairs`),
     each refused alone this step: one pair per line, with the effects of its refit.
@@ -713,7 +721,9 @@ def _one_line_set_up(
         (
             alone[AbbeOffset],
             alone[Cosine],
-            _with(_with(kept, alone[AbbeOffset].effect, machine), alone[Cosine].effect, machine),
+            kept_with(
+                kept_with(kept, alone[AbbeOffset].effect, machine), alone[Cosine].effect, machine
+            ),
         )
         for alone in by_line.values()
         if AbbeOffset in alone and Cosine in alone
@@ -727,15 +737,15 @@ HANDED_ON_LINES = 3
 
 
 def _handed_on(
-    tried: list[_Trial],
-    fit: _Fitter,
+    tried: list[Trial],
+    fit: Fitter,
     current: Identification,
     cv: CrossValidation,
     kept: list[Effect],
     options: LoopOptions,
-) -> list[list[_Trial]]:
+) -> list[list[Trial]]:
     """Set-up errors of the lines a surface of the step was refused for leaving systematic
-    (:func:`_gained_through_lines_it_leaves`), refitted together beside the kept effects:
+    (:func:`gained_through_lines_it_leaves`), refitted together beside the kept effects:
     one group per choice of an Abbe offset or a cosine error on each line, each member judged
     against the current model; the groups of which every member passes every rule.
 
@@ -755,7 +765,7 @@ def _handed_on(
     machine = current.model.machine
     alpha = np.log10(options.alpha)
     seen: set[frozenset[str]] = set()
-    groups: list[list[_Trial]] = []
+    groups: list[list[Trial]] = []
     for trial in sorted((t for t in tried if t.left), key=lambda t: t.score):
         if trial.left in seen or len(trial.left) > HANDED_ON_LINES:
             continue
@@ -777,42 +787,42 @@ def _handed_on(
         for choice in itertools.product(*per_line.values()):
             effects = list(kept)
             for finding in choice:
-                effects = _with(effects, finding.effect, machine)
+                effects = kept_with(effects, finding.effect, machine)
             refit, cv_new = fit(effects, current.model)
-            group = [_judge(f, current, cv, refit, cv_new, options) for f in choice]
+            group = [judge(f, current, cv, refit, cv_new, options) for f in choice]
             if all(t.ok for t in group):
                 groups.append(group)
     return groups
 
 
 def _handed_on_kept(
-    groups: list[list[_Trial]], chosen: _Trial | None, tried: list[_Trial], tie: float
-) -> list[_Trial] | None:
+    groups: list[list[Trial]], chosen: Trial | None, tried: list[Trial], tie: float
+) -> list[Trial] | None:
     """The group of :func:`_handed_on` to keep, or None: the best-predicting one, where no
     candidate of the step passed, or where it predicts better than the one that did, or as
     well (within ``tie``) adding fewer parameters to the model. The effects are not counted,
-    as :func:`_simplest_best` counts them: a group is one set-up error per line that the
+    as :func:`simplest_best` counts them: a group is one set-up error per line that the
     surface it stands against leaves systematic. Scores are taken over the readings all of
     them predict."""
     if not groups:
         return None
-    ranked = _on_common_rows(tried + [group[0] for group in groups])
+    ranked = on_common_rows(tried + [group[0] for group in groups])
     leads = ranked[len(tried) :]
     best = min(range(len(groups)), key=lambda i: leads[i].score)
     if chosen is None:
         return groups[best]
     score, theirs = leads[best].score, ranked[tried.index(chosen)].score
-    terms = _model_terms(groups[best][0].refit)
-    if score < theirs or (score <= theirs * (1.0 + tie) and terms < _model_terms(chosen.refit)):
+    terms = model_terms(groups[best][0].refit)
+    if score < theirs or (score <= theirs * (1.0 + tie) and terms < model_terms(chosen.refit)):
         return groups[best]
     return None
 
 
-def _handed_on_text(trial: _Trial, group: list[_Trial], surface: _Trial) -> str:
+def _handed_on_text(trial: Trial, group: list[Trial], surface: Trial) -> str:
     """Why ``trial`` was kept with the rest of its group (:func:`_handed_on`)."""
     others = [t.finding.effect.label for t in group if t is not trial]
-    together = f"kept together with the {_and(others)}: " if others else ""
-    lines = _and(sorted(surface.left))
+    together = f"kept together with the {in_words(others)}: " if others else ""
+    lines = in_words(sorted(surface.left))
     shown = (
         "their set-up errors show: the 21 errors share them between the lines while they are "
         "missing"
@@ -826,18 +836,18 @@ def _handed_on_text(trial: _Trial, group: list[_Trial], surface: _Trial) -> str:
     )
 
 
-def _group_instead(group: list[_Trial], trial: _Trial) -> str:
+def _group_instead(group: list[Trial], trial: Trial) -> str:
     """The clause of a passing candidate's reason that names the group kept instead, both
     errors over the readings both predict."""
-    kept = _and([t.finding.effect.label for t in group])
-    ours, theirs = _on_common_rows([group[0], trial])
+    kept = in_words([t.finding.effect.label for t in group])
+    ours, theirs = on_common_rows([group[0], trial])
     return (
         f"; the {kept} were kept instead, together (cross-validated RMS {ours.score:.4g} "
         f"against {theirs.score:.4g} over the readings both predict)"
     )
 
 
-def _together(trial: _Trial, partner: _Trial) -> str:
+def _together(trial: Trial, partner: Trial) -> str:
     """Why ``trial`` was kept with ``partner``: set-up errors of two lines, or one line's."""
     why = (
         "a beam off the reflector's path and tilted, on one line; either alone takes the other's "
@@ -849,10 +859,10 @@ def _together(trial: _Trial, partner: _Trial) -> str:
     return f"kept together with the {partner.finding.effect.label}: {why}"
 
 
-def _prune(
+def prune(
     stage: Callable[..., tuple[Identification, CrossValidation, list[Effect]]],
-    state: _State,
-    fit: _Fitter,
+    state: State,
+    fit: Fitter,
     base: Identification,
     cv_base: CrossValidation,
     options: LoopOptions,

@@ -13,39 +13,39 @@ from scipy import special
 
 from .effects import AbbeOffset, Effect, LocalDefect, Reversal, ThermalDrift
 from .identify import BLOCK_MM, CrossValidation, Identification
-from .loop_compare import _Fitter, _rows_compared, _Trial, _with
-from .loop_courses import _off_course
+from .loop_compare import Fitter, Trial, kept_with, rows_compared
+from .loop_courses import off_course
 from .loop_records import ONE_LINE_CANNOT_TELL, Finding, FloatArray, IntArray, LoopOptions
-from .loop_tester import _and, _fit_metric, _log10_text, _rms, _Tester
-from .loop_unexplained import _systematic_lines, _Wander, _wandering, _widespread
+from .loop_tester import Tester, fit_metric, in_words, log10_text, rms_over
+from .loop_unexplained import Wander, systematic_lines, wandering_lines, widespread
 from .machine import AXIS_INDEX
 from .readings import Readings
 
 
-def _judge(
+def judge(
     finding: Finding,
     current: Identification,
     cv: CrossValidation,
     refit: Identification,
     cv_new: CrossValidation,
     options: LoopOptions,
-    fit: _Fitter | None = None,
-) -> _Trial:
+    fit: Fitter | None = None,
+) -> Trial:
     """Keep or refuse a refitted candidate: plausibility, corroboration, the margin on the
     held-out error of the lines it acts on, generalisation and consistency. With ``fit`` (the
     session's refits), a surface is also judged without the lines it leaves systematic
-    (:func:`_gained_through_lines_it_leaves`)."""
+    (:func:`gained_through_lines_it_leaves`)."""
     effect = finding.effect
     index = list(refit.effects).index(effect)
     values, covariance = refit.effect_parameters[index], refit.effect_covariances[index]
     parameters = effect.parameters(values, covariance)
     contribution = effect.design(refit.readings, refit.model) @ values
-    tester = _Tester(current)
+    tester = Tester(current)
     energy = tester.line_energy(contribution)
-    # the readings both models predict (:func:`_compared`), for the margin and generalisation
-    rows, wild = _rows_compared(cv, cv_new, current, refit)
-    before = _rms(cv.residual, current.readings, rows)
-    after = _rms(cv_new.residual, current.readings, rows)
+    # the readings both models predict (:func:`cv_compared`), for the margin and generalisation
+    rows, wild = rows_compared(cv, cv_new, current, refit)
+    before = rms_over(cv.residual, current.readings, rows)
+    after = rms_over(cv_new.residual, current.readings, rows)
     improvement = _gain(before, after)
     judged, over, where_text = _margin_gain(
         effect, current, rows, cv, cv_new, improvement, options.margin
@@ -61,8 +61,8 @@ def _judge(
         uncorroborated: bool = False,
         left: frozenset[str] = frozenset(),
         alone_on: str = "",
-    ) -> _Trial:
-        return _Trial(
+    ) -> Trial:
+        return Trial(
             finding,
             refit,
             cv_new,
@@ -79,14 +79,14 @@ def _judge(
             over,
         )
 
-    why = _implausible_fitted(refit, index, options, fit, current)
+    why = implausible_fitted(refit, index, options, fit, current)
     if why is not None:
         return refused(f"implausible: {why}", "implausible")
-    null = _indistinguishable_from_nothing(values, covariance)
+    null = indistinguishable_from_nothing(values, covariance)
     if null is not None:
         return refused(null, "not confirmed")
     if effect.line_index is not None:
-        wander = _wandering(current, options.alpha).get(effect.line_index)
+        wander = wandering_lines(current, options.alpha).get(effect.line_index)
         if wander is not None:
             return refused(_set_up_of_wandering_line(wander), "not repeatable")
     lonely = _uncorroborated(effect, energy, refit.readings)
@@ -97,14 +97,14 @@ def _judge(
     if finer is not None:
         return refused(finer, "one line only", uncorroborated=True)
     if effect.kind in NEEDS_TWO_LINES:
-        per_line = _held_out_gain(tester, cv, cv_new, rows)
+        per_line = held_out_gain_per_line(tester, cv, cv_new, rows)
         unsteady = _gained_on_wandering_lines(
-            _wandering(current, options.alpha), per_line, current.readings
+            wandering_lines(current, options.alpha), per_line, current.readings
         )
         if unsteady is not None:
             return refused(unsteady, "not repeatable")
         if isinstance(effect, LocalDefect) and cv.method == "leave-one-line-out":
-            contradicted = _contradicted_by_a_line(energy, per_line, current.readings)
+            contradicted = contradicted_by_a_line(energy, per_line, current.readings)
             if contradicted is not None:
                 return refused(contradicted, "not confirmed")
     if improvement < options.margin:
@@ -117,10 +117,10 @@ def _judge(
 
     # over the same readings: a line left out as no prediction confirms nothing, nor is asked to
     def share_confirmed(asked: NDArray[np.bool_]) -> float:
-        fit_gain = _fit_metric(current, asked) ** 2 - _fit_metric(refit, asked) ** 2
+        fit_gain = fit_metric(current, asked) ** 2 - fit_metric(refit, asked) ** 2
         held_out_gain = (
-            _rms(cv.residual, current.readings, asked) ** 2
-            - _rms(cv_new.residual, current.readings, asked) ** 2
+            rms_over(cv.residual, current.readings, asked) ** 2
+            - rms_over(cv_new.residual, current.readings, asked) ** 2
         )
         return held_out_gain / fit_gain if fit_gain > 0 else 1.0
 
@@ -136,12 +136,12 @@ def _judge(
             "not confirmed",
         )
     exact_shape = effect.line_index is not None
-    sizes = _Sizes(refit, index, contribution)
+    sizes = Sizes(refit, index, contribution)
     unrepeatable = _unrepeatable(sizes.by_run(), options, exact_shape)
     if unrepeatable is not None:
         return refused(unrepeatable, "not repeatable")
     if isinstance(effect, ThermalDrift) and effect.mode == "time":
-        off = _off_course(refit, index, options.alpha)
+        off = off_course(refit, index, options.alpha)
         if off is not None:
             return refused(off, "not repeatable")
     if exact_shape:
@@ -154,10 +154,10 @@ def _judge(
             return refused(uneven, "uneven along its line")
     if effect.kind in ("cross_axis", "higher_order") and fit is not None:
         # per_line: the held-out gain by line computed above (both kinds need two lines)
-        carried = _gained_through_lines_it_leaves(effect, current, refit, per_line, fit)
+        carried = gained_through_lines_it_leaves(effect, current, refit, per_line, fit)
         if carried is not None:
             return refused(carried[0], "not confirmed", left=carried[1])
-    return _Trial(
+    return Trial(
         finding,
         refit,
         cv_new,
@@ -188,10 +188,10 @@ def _margin_gain(
     """The held-out gain an effect is held to the margin by, over which readings, and the words
     a step's reason gives it in: over the plan (``improvement``, "" and ""), or, where that
     falls short of ``margin`` but betters the plan's error at all and the effect acts on few of
-    its readings, over those (:func:`_gain_where_it_acts`)."""
+    its readings, over those (:func:`gain_where_it_acts`)."""
     if improvement >= margin or improvement <= 0:
         return improvement, "", ""
-    local = _gain_where_it_acts(effect, current, rows, before, after)
+    local = gain_where_it_acts(effect, current, rows, before, after)
     if local is None:
         return improvement, "", ""
     gained, where, first, second = local
@@ -207,8 +207,8 @@ def _where_it_acts(
     constant one, the displacement readings on the lines that move its axis, the only ones the
     slope it adds acts on; for a local defect, the displacement readings within its reach (where
     its profile reaches 1 % of its peak). The margin may then be earned over them
-    (:func:`_judge`), once it betters the plan's error at all, and the backward pass asks the
-    same of it (:func:`_backward`).
+    (:func:`judge`), once it betters the plan's error at all, and the backward pass asks the
+    same of it (:func:`backward`).
 
     Asked over the whole plan, the slope of one axis' reversal is diluted by every line that
     cannot see it: blind 50073, a reversal of Z from −1.81 to −2.33 µm over the stroke at
@@ -239,7 +239,7 @@ def _where_it_acts(
     return acts, f"lines that move {effect.axis}, the only ones its slope acts on"
 
 
-def _gain_where_it_acts(
+def gain_where_it_acts(
     effect: Effect,
     current: Identification,
     rows: NDArray[np.bool_],
@@ -253,8 +253,8 @@ def _gain_where_it_acts(
     if reach is None:
         return None
     near, where = reach
-    first = _rms(before.residual, current.readings, near)
-    second = _rms(after.residual, current.readings, near)
+    first = rms_over(before.residual, current.readings, near)
+    second = rms_over(after.residual, current.readings, near)
     return _gain(first, second), where, first, second
 
 
@@ -270,7 +270,7 @@ def _lines_moving(readings: Readings, axis: str) -> NDArray[np.bool_]:
 
 
 #: A line still systematic beside an effect is one it explains, with a remainder of its own, not
-#: one it leaves (:func:`_gained_through_lines_it_leaves`), where the effect takes this share or
+#: one it leaves (:func:`gained_through_lines_it_leaves`), where the effect takes this share or
 #: more of the mean square the model without it leaves there ...
 EXPLAINED_SHARE = 0.75
 #: ... and what stays there is at most this many times the line's noise variance.
@@ -291,12 +291,12 @@ def _explains(without: Identification, with_it: Identification, index: int) -> b
     return after <= (1.0 - EXPLAINED_SHARE) * before and after <= REMAINDER_NOISE * noise
 
 
-def _gained_through_lines_it_leaves(
+def gained_through_lines_it_leaves(
     effect: Effect,
     current: Identification,
     refit: Identification,
     per_line: FloatArray,
-    fit: _Fitter,
+    fit: Fitter,
     spread_in: Identification | None = None,
 ) -> tuple[str, frozenset[str]] | None:
     """Why a surface or a finer function is not kept when what it gains held out is the
@@ -309,7 +309,7 @@ def _gained_through_lines_it_leaves(
     and a surface relieves the pull: it takes over part of the other lines' readings, frees the
     errors to follow the disagreeing line, and predicts held-out readings better on every line
     the pull reached, that line's too — without explaining it: the line still disagrees with the
-    model beyond its repeatability (:func:`_systematic`) with the surface in (indep. 4500087,
+    model beyond its repeatability (:func:`is_systematic`) with the surface in (indep. 4500087,
     sparse plan: 3.9 µm twitches of z_straight_y and y_straight_z, outside the catalogue; a
     surface EY over X×Y of order 8 was 11.7 % better held out, half of it on those two lines,
     which it does not even reach, the rest on the lines whose errors they had moved; without
@@ -344,11 +344,11 @@ def _gained_through_lines_it_leaves(
     z_linear_side's mean square, and 6.4 times its noise variance stayed (blind 36049)."""
     readings = refit.readings
     options = fit.loop_options
-    if _widespread(_systematic_lines(spread_in or current, options.alpha), len(readings.lines)):
+    if widespread(systematic_lines(spread_in or current, options.alpha), len(readings.lines)):
         return None  # structure still missing, not a few lines of their own
     left = frozenset(
         readings.lines[index].name
-        for index in _systematic_lines(refit, options.alpha)
+        for index in systematic_lines(refit, options.alpha)
         if per_line[index] >= SHOWN_SIGMA2 and not _explains(current, refit, index)
     )
     if not left:
@@ -358,10 +358,10 @@ def _gained_through_lines_it_leaves(
         return None
     kept = reduced.moved([e for e in current.effects if isinstance(e, Effect)])
     rest, cv_rest = reduced.once(kept, current.model)
-    with_it, cv_with = reduced(_with(kept, effect, current.model.machine), current.model)
-    rows, _ = _rows_compared(cv_rest, cv_with, rest, with_it)
-    before = _rms(cv_rest.residual, rest.readings, rows)
-    after = _rms(cv_with.residual, rest.readings, rows)
+    with_it, cv_with = reduced(kept_with(kept, effect, current.model.machine), current.model)
+    rows, _ = rows_compared(cv_rest, cv_with, rest, with_it)
+    before = rms_over(cv_rest.residual, rest.readings, rows)
+    after = rms_over(cv_with.residual, rest.readings, rows)
     improvement = 1.0 - after / before if before > 0 else 0.0
     if improvement >= options.margin:
         return None
@@ -369,7 +369,7 @@ def _gained_through_lines_it_leaves(
     share /= max(float(np.clip(per_line, 0.0, None).sum()), 1e-300)
     return (
         f"{100 * share:.0f} % of what the held-out readings gain with it is on lines it leaves "
-        f"systematic ({_and(sorted(left))}); without those lines it predicts the held-out "
+        f"systematic ({in_words(sorted(left))}); without those lines it predicts the held-out "
         f"readings {100 * improvement:.1f} % better (at least {100 * options.margin:.0f} % "
         "needed): what it gains is their disagreement with the rest, carried through the 21 "
         "errors, not a surface of the machine; refused",
@@ -426,13 +426,13 @@ def _cancelled_by_its_function(contribution: FloatArray, change: FloatArray) -> 
 
 
 #: A refitted effect whose parameters' Wald χ² is at a false-alarm level above this is within its
-#: stated uncertainty of nothing and refused (:func:`_indistinguishable_from_nothing`): 1 %, a
+#: stated uncertainty of nothing and refused (:func:`indistinguishable_from_nothing`): 1 %, a
 #: single parameter within 2.6 standard uncertainties of zero.
 NULL_LEVEL = 1e-2
 
 
 #: A set-up effect whose diagnosis gain is at least this share of the strongest proposal's is
-#: refitted in the step's first batch when surfaces alone fill it (:func:`_set_up_tied`).
+#: refitted in the step's first batch when surfaces alone fill it (:func:`set_up_tied`).
 SET_UP_TIE = 0.99
 
 
@@ -440,12 +440,12 @@ SET_UP_TIE = 0.99
 TOGETHER = "kept together"
 
 
-#: How a step's rows say that the loop ran on from it two ways (:func:`_other_route`).
+#: How a step's rows say that the loop ran on from it two ways (:func:`other_route`).
 BOTH_WAYS = "the loop ran on from this step both ways"
 
 
 #: The words a step's row closes with where a kept drift's τ was placed again beside its
-#: candidate (:func:`_tried`); the console prints them under the loop table.
+#: candidate (:func:`try_finding`); the console prints them under the loop table.
 PLACED_AGAIN = "placed again with it"
 
 
@@ -484,7 +484,7 @@ def _uncorroborated(
     warm-up (blind 50121, direct plan: X warming by 24.9 ppm with τ 24 min; only x_linear, the
     first line along X, shows it). A beam that drifts during that very line reads the same, and
     the drift's kept τ then has a wide range (report.json ``time_constant_range_s``,
-    :func:`_time_constant_doubts`). The drift as fitted must have settled, though: where the
+    :func:`time_constant_doubts`). The drift as fitted must have settled, though: where the
     next linear line along its axis starts less than :data:`SETTLED_TAUS` time constants after
     the session's first reading, the later lines would read a scale still on its way, and
     reading nothing of it they do not bear the warm-up out — a course in time within the one
@@ -501,7 +501,7 @@ def _uncorroborated(
         isinstance(effect, ThermalDrift)
         and drift_in_time
         and showing.size == 1
-        and int(showing[0]) == _earliest_along(effect.axis, readings)
+        and int(showing[0]) == earliest_along(effect.axis, readings)
         and _settled_before_the_next(effect, int(showing[0]), readings)
     ):
         return None
@@ -532,7 +532,7 @@ def _started(index: int, readings: Readings) -> float:
     return float(readings.time_s[readings.line == index].min())
 
 
-def _earliest_along(axis: str | None, readings: Readings) -> int | None:
+def earliest_along(axis: str | None, readings: Readings) -> int | None:
     """The linear line that moves ``axis`` and was started first, or None when none does."""
     if axis is None:
         return None
@@ -552,8 +552,8 @@ def _settled_before_the_next(drift: ThermalDrift, earliest: int, readings: Readi
     return not later or min(later) >= SETTLED_TAUS * drift.time_constant_s
 
 
-def _held_out_gain(
-    tester: _Tester, cv: CrossValidation, cv_new: CrossValidation, rows: NDArray[np.bool_]
+def held_out_gain_per_line(
+    tester: Tester, cv: CrossValidation, cv_new: CrossValidation, rows: NDArray[np.bool_]
 ) -> FloatArray:
     """Per line: how much better (weighted, in the tested fit's σ²) its held-out readings among
     ``rows`` are predicted by ``cv_new`` than by ``cv``."""
@@ -567,13 +567,13 @@ def _held_out_gain(
 
 
 def _gained_on_wandering_lines(
-    wandering: dict[int, _Wander], per_line: FloatArray, readings: Readings
+    wandering: dict[int, Wander], per_line: FloatArray, readings: Readings
 ) -> str | None:
     """Why a shape in position (a local defect, a finer function, a surface) whose held-out gain
-    (``per_line``, :func:`_held_out_gain`) comes mostly from lines that repeat far worse than
-    their peers is not kept, or None.
+    (``per_line``, :func:`held_out_gain_per_line`) comes mostly from lines that repeat far worse
+    than their peers is not kept, or None.
 
-    Such a line (:func:`_wandering`) holds, in its per-target means, what changed between its
+    Such a line (:func:`wandering_lines`) holds, in its per-target means, what changed between its
     runs: an error periodic in time that keeps step with the runs leaves a shape there that is
     the line's timing, not the machine's. Several such lines are fitted by a surface as well as
     by anything, and held-out blocks of the same runs confirm it (blind 42119: a 2.5 µm Z error
@@ -603,7 +603,7 @@ def _gained_on_wandering_lines(
 CONTRADICTED_SHARE = 0.5
 
 
-def _contradicted_by_a_line(
+def contradicted_by_a_line(
     energy: FloatArray, per_line: FloatArray, readings: Readings
 ) -> str | None:
     """Why a local defect that a line showing it predicts worse where held out is not kept, or
@@ -645,7 +645,7 @@ def _contradicted_by_a_line(
 
 def _confirmed_by_one_line(
     effect: Effect,
-    tester: _Tester,
+    tester: Tester,
     cv: CrossValidation,
     cv_new: CrossValidation,
     rows: NDArray[np.bool_],
@@ -668,7 +668,7 @@ def _confirmed_by_one_line(
     if effect.kind != "higher_order":
         return None
     readings = tester.ident.readings
-    per_line = _held_out_gain(tester, cv, cv_new, rows)
+    per_line = held_out_gain_per_line(tester, cv, cv_new, rows)
     best = int(np.argmax(per_line))
     shown = energy >= SHOWN_SIGMA2
     shown[best] = False
@@ -693,19 +693,19 @@ def _approach_code(readings: Readings) -> IntArray:
 @dataclass(frozen=True)
 class _Change:
     """How much the size of a fitted contribution changes between groups of readings, beyond the
-    noise: log10 false alarm of the change and its spread (:class:`_Sizes`)."""
+    noise: log10 false alarm of the change and its spread (:class:`Sizes`)."""
 
     log10_p: float
     spread: float
 
 
-class _Sizes:
+class Sizes:
     """Whether the fitted ``contribution`` (per reading) of ``fit``'s effect ``index`` has one
     size between the lines that show it, the runs of each line and, for a set-up effect, along
     each line.
 
     The contribution is split by group and the split tested against the fit
-    (:meth:`_Tester.test_split`: what the model can absorb is projected out, so a difference the
+    (:meth:`Tester.test_split`: what the model can absorb is projected out, so a difference the
     21 errors or a line's zero take up is not held against it). Groups where it shows less than
     4 σ are pooled with the group that holds them. A split tested within a coarser one (runs
     within their line and approach direction, blocks of targets within their line) counts the
@@ -713,10 +713,10 @@ class _Sizes:
 
     The spread is the square root of what a split removes from the residual, beyond its degrees
     of freedom, over what the readings see of the effect: the part of its contribution the rest
-    of the model cannot absorb (its Wald χ², :func:`_wald`). A change of size the model takes up
-    almost whole costs nothing, however large its least-squares value; a change the readings see
-    better than the effect itself (a drift fitted to a laser that wanders, its contribution
-    absorbed by the 21 errors but for a trace) is larger than the effect.
+    of the model cannot absorb (its Wald χ², :func:`wald_statistic`). A change of size the model
+    takes up almost whole costs nothing, however large its least-squares value; a change the
+    readings see better than the effect itself (a drift fitted to a laser that wanders, its
+    contribution absorbed by the 21 errors but for a trace) is larger than the effect.
     """
 
     def __init__(
@@ -725,8 +725,8 @@ class _Sizes:
         self.contribution = contribution
         #: lines allowed a size of their own by :meth:`by_line`
         self.free = list(free)
-        self.seen = max(_wald(fit, index), 1e-300)
-        self.tester = _Tester(fit)
+        self.seen = max(wald_statistic(fit, index), 1e-300)
+        self.tester = Tester(fit)
         self.energy = self.tester.w / self.tester.sigma2 * self.contribution**2
         readings = fit.readings
         line = readings.line.astype(np.int64)
@@ -810,9 +810,9 @@ def _beyond(
     return None
 
 
-def _set_up_of_wandering_line(wander: _Wander) -> str:
+def _set_up_of_wandering_line(wander: Wander) -> str:
     """Why a set-up effect (an Abbe offset, a cosine misalignment) of a line that repeats far
-    worse than its peers (:func:`_wandering`) is refused.
+    worse than its peers (:func:`wandering_lines`) is refused.
 
     Its readings change between runs by more than anything of the catalogue: its laser or
     reflector wanders, or an error varies in time. What such a change leaves in the line's
@@ -826,7 +826,7 @@ def _set_up_of_wandering_line(wander: _Wander) -> str:
         f"not repeatable: its line repeats to {wander.sigma:.3g} {wander.unit}, "
         f"{wander.sigma / wander.typical:.1f} times its steadiest peers' {wander.typical:.3g} "
         f"{wander.unit} (F test, log10 false alarm "
-        f"{_log10_text(wander.p)}): a set-up fitted to readings that change between runs "
+        f"{log10_text(wander.p)}): a set-up fitted to readings that change between runs "
         "cannot be told from their change; refused"
     )
 
@@ -865,7 +865,7 @@ def _reversal_uneven(
     effect: Reversal,
     current: Identification,
     refit: Identification,
-    fit: _Fitter,
+    fit: Fitter,
     options: LoopOptions,
 ) -> str | None:
     """Why a reversal is refused for a size that changes along its lines beyond what one that
@@ -891,7 +891,7 @@ def _reversal_uneven(
         readings = fitted.readings
         moves = _lines_moving(readings, reversal.axis_name)
         contribution = reversal.design(readings, fitted.model) @ fitted.effect_parameters[index]
-        return _Sizes(fitted, index, np.where(moves[readings.line], contribution, 0.0)).along_line()
+        return Sizes(fitted, index, np.where(moves[readings.line], contribution, 0.0)).along_line()
 
     change = change_along(refit, effect)
     if effect.order == 0 and _uneven(change, options) is not None:
@@ -910,7 +910,7 @@ def _reversal_uneven(
     )
 
 
-def _unequal(change: _Change, options: LoopOptions) -> str | None:
+def unequal(change: _Change, options: LoopOptions) -> str | None:
     """Why a kept effect is taken out for sizes that differ between the lines that show it."""
     return _beyond(
         change,
@@ -929,13 +929,13 @@ SETTLE_SHARE = 0.5
 
 
 def _implausible_once_settled(
-    fit: _Fitter, refit: Identification, index: int, options: LoopOptions
+    fit: Fitter, refit: Identification, index: int, options: LoopOptions
 ) -> str | None:
     """Why the ``index``-th effect of ``refit``, an Abbe offset, is implausible once its lever
     arm and the angles it acts through agree, if it is.
 
     A refit of the loop is one linear solve, and an Abbe offset acts through the angles of the
-    model it starts from; iterated (as the final model is, :meth:`_Fitter.converged`), the
+    model it starts from; iterated (as the final model is, :meth:`Fitter.converged`), the
     lever arm takes what those angles lack. Of the machine's lever arm that settles it
     (blind 38111: 61.7 mm in one solve, 57.0 mm iterated, 56.4 injected); of something else that
     the offset only resembles on its line, it can grow past the optics' reach (blind 48071,
@@ -959,11 +959,11 @@ def _implausible_in(fit: Identification, index: int, options: LoopOptions) -> st
     return effect.implausible(values, covariance, options.plausibility)
 
 
-def _implausible_fitted(
+def implausible_fitted(
     refit: Identification,
     index: int,
     options: LoopOptions,
-    fit: _Fitter | None,
+    fit: Fitter | None,
     without: Identification | None,
 ) -> str | None:
     """Why the ``index``-th effect of ``refit`` is no effect a set-up or a machine has, if it
@@ -985,7 +985,7 @@ def _implausible_fitted(
     return why
 
 
-def _any_implausible(fit: Identification, options: LoopOptions) -> str | None:
+def any_implausible(fit: Identification, options: LoopOptions) -> str | None:
     """Why one of ``fit``'s effects has parameters no set-up allows, if one has."""
     return next(
         (why for i in range(len(fit.effects)) if (why := _implausible_in(fit, i, options))), None
@@ -1016,7 +1016,7 @@ def _first_line_drifting(
     return out
 
 
-def _indistinguishable_from_nothing(values: FloatArray, covariance: FloatArray) -> str | None:
+def indistinguishable_from_nothing(values: FloatArray, covariance: FloatArray) -> str | None:
     """Why a refitted effect explains nothing, if its fitted parameters are within their stated
     uncertainty of zero: the Wald statistic βᵀC⁻¹β, χ² with as many degrees of freedom as C has
     rank, at a false-alarm level above :data:`NULL_LEVEL`. The held-out error such an effect
@@ -1025,7 +1025,7 @@ def _indistinguishable_from_nothing(values: FloatArray, covariance: FloatArray) 
     −0.04 ± 0.42 ppm, 4.5 % better held out, and an Abbe offset of (−8 ± 13, 26 ± 26) mm,
     3.1 %, each refitted after the effect it had been refused beside was kept). Where the
     diagnosis found the effect at its own level, the refit rarely loses it: this rule bites on
-    refits the diagnosis no longer asked for (:func:`_owed`)."""
+    refits the diagnosis no longer asked for (:func:`owed_refit`)."""
     rank = int(np.linalg.matrix_rank(covariance)) if covariance.size else 0
     if rank == 0:
         return None
@@ -1040,7 +1040,7 @@ def _indistinguishable_from_nothing(values: FloatArray, covariance: FloatArray) 
     )
 
 
-def _wald(identification: Identification, index: int) -> float:
+def wald_statistic(identification: Identification, index: int) -> float:
     """βᵀC⁻¹β of one effect's parameters in a fit, in units of the fit's σ²."""
     beta = identification.effect_parameters[index]
     covariance = identification.effect_covariances[index] / max(

@@ -66,7 +66,7 @@ class LoopOptions:
         a line and an approach direction (line by line in the final audit, block by block of
         targets along its line for a set-up effect), varies beyond the noise at this false-alarm
         level (log10) and by more than this share of what the readings see of it is refused
-        (:class:`_Sizes`); the share tolerates a shape that fits the structure imperfectly.
+        (:class:`Sizes`); the share tolerates a shape that fits the structure imperfectly.
     repeatability_spread_setup : the share for a set-up effect (Abbe offset, cosine
         misalignment) run by run, whose shape is exact.
     time_constants_s : the range over which a time-driven drift's τ is estimated.
@@ -160,7 +160,7 @@ class SpacingChoice:
     """The breakpoint spacing of the 21 errors' B-spline basis and how it was chosen: per
     spacing tried (mm), the cross-validated RMS over the displacement lines (µm) and over every
     line with angular readings on the displacement scale (what the choice is judged by), each
-    over the readings both it and ``reference_mm`` predict (:func:`_choose_spacing`)."""
+    over the readings both it and ``reference_mm`` predict (:func:`choose_spacing`)."""
 
     spacing_mm: float
     reference_mm: float

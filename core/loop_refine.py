@@ -12,14 +12,14 @@ from scipy.optimize import minimize_scalar
 from .effects import Cyclic, Effect, ThermalDrift
 from .errors import ErrorModel
 from .identify import CrossValidation, Identification
-from .loop_compare import _compared, _Fitter, _later_step
+from .loop_compare import Fitter, cv_compared, later_step
 from .loop_records import Step
-from .loop_tester import _noise_variance, _Tester
+from .loop_tester import Tester, noise_variance
 from .machine import Machine
 
 
-def _refine(
-    fit: _Fitter,
+def refine_kept(
+    fit: Fitter,
     current: Identification,
     cv: CrossValidation,
     kept: list[Effect],
@@ -37,29 +37,29 @@ def _refine(
     first (it is the same effect, placed better) and replaces it only when the cross-validated
     error says it is better."""
     for effect in list(kept):
-        # a cycle at the screw lead too (:func:`_re_estimate`)
+        # a cycle at the screw lead too (:func:`re_estimate`)
         if not (
             isinstance(effect, Cyclic) or (isinstance(effect, ThermalDrift) and effect.searched)
         ):
             continue
-        without = _without(effect, kept, fit, current.model, base)
-        better = _re_estimate(
-            effect, without, current.model.machine, alpha, _noise_variance(current)
+        without = fit_without(effect, kept, fit, current.model, base)
+        better = re_estimate(
+            effect, without, current.model.machine, alpha, noise_variance(current)
         )
         if better is None:
             continue
         trial_kept = [better if e is effect else e for e in kept]
         refit, cv_new = fit(trial_kept, current.model)
-        before, after, _ = _compared(cv, cv_new, current, other_fit=refit)
+        before, after, _ = cv_compared(cv, cv_new, current, other_fit=refit)
         if not after < before:
             continue
         reason = (
             f"{effect.label} estimated again with the other kept effects in the model: "
-            f"{_searched_value(effect)} → {_searched_value(better)}; cross-validated RMS "
+            f"{searched_value(effect)} → {searched_value(better)}; cross-validated RMS "
             f"{before:.4g} → {after:.4g}"
         )
         steps.append(
-            _later_step(
+            later_step(
                 number, better, refit, (refit, cv_new), True, reason, (current, cv), "refine"
             )
         )
@@ -67,34 +67,34 @@ def _refine(
     return current, cv, kept
 
 
-def _without(
+def fit_without(
     effect: Effect,
     effects: list[Effect],
-    fit: _Fitter,
+    fit: Fitter,
     initial: ErrorModel,
     base: Identification | None,
-) -> _Tester:
+) -> Tester:
     """A tester of what the refit with ``effects`` less ``effect`` leaves (``base``, the fit of
     the 21 errors alone, when nothing else is left), to place ``effect``'s searched quantity in."""
     rest = [e for e in effects if e is not effect]
-    return _Tester(fit.identify(rest, initial) if rest or base is None else base)
+    return Tester(fit.identify(rest, initial) if rest or base is None else base)
 
 
-def _searched_value(effect: Effect) -> str:
+def searched_value(effect: Effect) -> str:
     if isinstance(effect, Cyclic):
         return f"period {effect.period_mm:.5g} mm"
     assert isinstance(effect, ThermalDrift)
     return f"τ {effect.time_constant_s / 60:.4g} min"
 
 
-def _re_estimate(
-    effect: Effect, tester: _Tester, machine: Machine, alpha: float, sigma2: float
+def re_estimate(
+    effect: Effect, tester: Tester, machine: Machine, alpha: float, sigma2: float
 ) -> Effect | None:
     """The effect with its searched quantity placed where it removes most of what the model
     without it leaves, within one resolution step of its present value; None when that is no
     better than the present value beyond the noise: the χ² it removes must grow past the
     ``alpha`` level of one degree of freedom, counted in the σ² of the fit with every effect in
-    (``sigma2``, :func:`_noise_variance`). ``tester``'s σ² holds what the effect leaves while
+    (``sigma2``, :func:`noise_variance`). ``tester``'s σ² holds what the effect leaves while
     it is out of the model and can be a hundred times the noise, so a move worth hundreds of
     the noise's σ² reads as a fraction of a per cent of the effect's own χ² (blind 56101, plan
     of the demo: a 4.4 µm cycle of X kept at 23.509 mm beside a drift of X; at 23.533 mm (truth

@@ -24,7 +24,7 @@ from .effects import (
 from .errors import AXIS_ERROR_IDS, ErrorModel
 from .identify import Identification
 from .loop_records import EffectKey, Finding, FloatArray, LoopOptions
-from .loop_tester import _corrected, _Diagnosis, _moving_axes, _Tester
+from .loop_tester import Diagnosis, Tester, corrected, moving_axes
 from .machine import AXES, AXIS_INDEX
 from .measurement import LineSpec
 from .readings import Readings
@@ -43,10 +43,10 @@ def diagnose(
     readings = identification.readings
     model = identification.model
     machine = model.machine
-    diagnosis = _Diagnosis(_Tester(identification), readings, model, set(exclude))
+    diagnosis = Diagnosis(Tester(identification), readings, model, set(exclude))
     warnings: list[str] = []
     excluded_kind_axis = {(k, a) for k, a, _ in exclude}
-    moving = _moving_axes(readings)
+    moving = moving_axes(readings)
     finest = _finest_steps(readings)
     for axis in AXES:
         low, high = machine.stroke(axis)
@@ -80,7 +80,7 @@ def diagnose(
     total = len(findings)
     # family-wise correction over everything tested in this step
     findings = [
-        replace(f, log10_false_alarm=_corrected(f.log10_false_alarm, total)) for f in findings
+        replace(f, log10_false_alarm=corrected(f.log10_false_alarm, total)) for f in findings
     ]
     findings.sort(key=lambda f: (f.log10_false_alarm, -f.f_statistic))
     return findings, warnings
@@ -112,7 +112,7 @@ def _finest_steps(readings: Readings) -> dict[str, float]:
 
 
 def _cyclic_candidates(
-    diagnosis: _Diagnosis, axis: str, ref: float, step: float, span: float
+    diagnosis: Diagnosis, axis: str, ref: float, step: float, span: float
 ) -> list[str]:
     """The screw lead's cycle (with its second harmonic) and the strongest cycle of a
     least-squares periodogram along the axis; warnings where the targets cannot reveal one.
@@ -138,7 +138,7 @@ def _cyclic_candidates(
     shortest = max(SHORTEST_PERIOD_MM, 2.0 * step if np.isfinite(step) else 0.0)
     if not np.isfinite(step) or SUB_SPACING_SHARE * step <= SHORTEST_PERIOD_MM:
         lowest = SHORTEST_PERIOD_MM
-    elif _irregular_targets(diagnosis.readings, axis):  # only where it lowers the floor
+    elif irregular_targets(diagnosis.readings, axis):  # only where it lowers the floor
         lowest = SHORTEST_PERIOD_MM
     else:
         lowest = SUB_SPACING_SHARE * step
@@ -176,7 +176,7 @@ def _cyclic_candidates(
         period, trials, alias = found
         where = f"along {axis}, period {period:.4g} mm"
         if alias:
-            where += f" (or its alias at {_periods_text(alias)})"
+            where += f" (or its alias at {periods_text(alias)})"
         one = diagnosis.add(Cyclic(axis, period, (1,), ref, True), trials, where, alias)
         if one is not None and 2 * shortest <= period:
             two = diagnosis.add(
@@ -194,7 +194,7 @@ def _cyclic_candidates(
 
 
 def _with_harmonic(
-    diagnosis: _Diagnosis, axis: str, ref: float, period: float, span: float
+    diagnosis: Diagnosis, axis: str, ref: float, period: float, span: float
 ) -> float:
     """The period of a cycle with its second harmonic, refined as the search refines the sine
     alone (:func:`_search_period`), within a quarter of the stroke's frequency resolution of
@@ -244,7 +244,7 @@ SHORTEST_PERIOD_MM = 2.0
 IRREGULAR_WINDOW = 0.5
 
 
-def _irregular_targets(readings: Readings, axis: str) -> bool:
+def irregular_targets(readings: Readings, axis: str) -> bool:
     """Whether the targets of the linear lines along ``axis`` are spaced irregularly enough that
     a cycle of any period down to :data:`SHORTEST_PERIOD_MM` is told from its aliases.
 
@@ -281,7 +281,7 @@ def _irregular_targets(readings: Readings, axis: str) -> bool:
 
 
 def _search_period(
-    diagnosis: _Diagnosis,
+    diagnosis: Diagnosis,
     axis: str,
     ref: float,
     shortest: float,
@@ -410,26 +410,26 @@ def _beats_aliases(gain: float, rival: float) -> bool:
     return gain >= ALIAS_MARGIN * rival or gain - rival >= ALIAS_SPREADS * 2.0 * np.sqrt(gain)
 
 
-def _periods_text(periods: Sequence[float]) -> str:
+def periods_text(periods: Sequence[float]) -> str:
     """'8.999 mm' or '8.999 mm and 18.28 mm'."""
     return " and ".join(f"{p:.4g} mm" for p in periods)
 
 
 def _thermal_candidates(
-    diagnosis: _Diagnosis, axis: str, ref: float, bounds: tuple[float, float]
+    diagnosis: Diagnosis, axis: str, ref: float, bounds: tuple[float, float]
 ) -> None:
     """A drift of the axis' scale driven by time (τ estimated) and, where the files log a
     changing material temperature, one driven by that temperature: both are candidates. Where
     files log the temperature only at their two ends, a third reads it between them as a
     first-order response (τ estimated, :class:`ThermalDrift`)."""
-    for make, within, where in _drift_forms(diagnosis.readings, axis, ref, bounds):
+    for make, within, where in drift_forms(diagnosis.readings, axis, ref, bounds):
         if within is None:
             diagnosis.add(make(0.0))
         else:
             _search_time_constant(diagnosis, make, within, f"all lines along {axis}{where}")
 
 
-def _drift_forms(
+def drift_forms(
     readings: Readings, axis: str, ref: float, bounds: tuple[float, float]
 ) -> list[tuple[Callable[[float], ThermalDrift], tuple[float, float] | None, str]]:
     """The forms of a drift of the axis' scale the readings allow (:func:`_thermal_candidates`):
@@ -442,7 +442,7 @@ def _drift_forms(
         out.append((lambda tau: ThermalDrift(axis, "temperature", reference_mm=ref), None, ""))
     if np.ptp(readings.time_s) <= 0:
         return out
-    within = _time_constant_range(bounds, readings)
+    within = time_constant_range(bounds, readings)
     out.append((lambda tau: ThermalDrift(axis, "time", tau, ref), within, ""))
     ends_s, ends_c = readings.material_ends_s, readings.material_ends_c
     changing = np.isfinite(ends_c).all(axis=1) & (np.abs(ends_c[:, 1] - ends_c[:, 0]) > 0.01)
@@ -459,14 +459,14 @@ def _drift_forms(
     return out
 
 
-def _time_constant_range(bounds: tuple[float, float], readings: Readings) -> tuple[float, float]:
+def time_constant_range(bounds: tuple[float, float], readings: Readings) -> tuple[float, float]:
     """The range (s) a drift in time's τ is searched in: ``bounds``, up to 20 times the session
     (τ well beyond it makes 1 − exp(−t/τ) a straight line: nothing to tell τ by)."""
     return bounds[0], min(bounds[1], 20.0 * float(np.ptp(readings.time_s)))
 
 
 def _search_time_constant(
-    diagnosis: _Diagnosis,
+    diagnosis: Diagnosis,
     make: Callable[[float], ThermalDrift],
     bounds: tuple[float, float],
     where: str,
@@ -481,7 +481,7 @@ def _search_time_constant(
         effect = make(float(np.exp(log_tau)))
         return diagnosis.tester.test(effect.design(diagnosis.readings, diagnosis.model))[0]
 
-    grid = _TauGrid(f_of, low, high)
+    grid = TauGrid(f_of, low, high)
     # independent τ over the range: about one per factor e
     trials = max(1, int(np.ceil(np.log(high / low))))
     guess = make(float(np.exp(grid.best)))
@@ -492,7 +492,7 @@ def _search_time_constant(
     diagnosis.add(make(tau), trials, f"{where}, τ = {tau / 60:.3g} min")
 
 
-class _TauGrid:
+class TauGrid:
     """A score of log τ on a 10-point grid over ``low`` … ``high`` (s), and its best refined
     continuously between the grid's neighbours."""
 
@@ -520,7 +520,7 @@ class _TauGrid:
 LOCAL_WIDTHS_MM = (3.0, 6.0, 12.0, 24.0, 40.0)
 
 
-def _search_local(diagnosis: _Diagnosis, axis: str) -> None:
+def _search_local(diagnosis: Diagnosis, axis: str) -> None:
     """A scan of Gaussian bumps along an axis, in each direction, over widths of 3–40 mm (1 σ);
     at the best place the bump of free profile (five splines over ± 3 σ, :class:`LocalDefect`)
     is refined continuously against what the model cannot absorb. A free profile narrower than
@@ -569,7 +569,7 @@ def _search_local(diagnosis: _Diagnosis, axis: str) -> None:
 
 
 def _best_gaussian(
-    diagnosis: _Diagnosis,
+    diagnosis: Diagnosis,
     axis: str,
     direction: str,
     widths: Sequence[float],
@@ -577,7 +577,7 @@ def _best_gaussian(
 ) -> tuple[float, float, int] | None:
     """The Gaussian bump along ``axis``, in ``direction``, of the 1 σ ``widths`` centred every
     half width within ``span`` (mm, each a width inside it), that scores best on the targets
-    (:meth:`_Tester.score_on_targets`): its centre, its width and how many were tried (half of
+    (:meth:`Tester.score_on_targets`): its centre, its width and how many were tried (half of
     them, the neighbours overlapping); None where no target sees the direction."""
     tester = diagnosis.tester
     positions, _, weight = tester.target_sums(AXIS_INDEX[direction])
@@ -601,7 +601,7 @@ def _best_gaussian(
 
 
 def _within_a_kept_bump(
-    diagnosis: _Diagnosis, axis: str, direction: str, center: float, width: float
+    diagnosis: Diagnosis, axis: str, direction: str, center: float, width: float
 ) -> bool:
     """Whether a kept bump of the same function (axis and direction) spans part of the one at
     ``center`` ± ``width``: two bumps over one stretch are a finer function there, which the
@@ -646,15 +646,15 @@ FREE_SPAN_SIGMAS = 3.0
 REFINE_GATE_LOG10 = -2.0
 
 
-def _worth_refining(diagnosis: _Diagnosis, effect: Effect, trials: int) -> bool:
+def _worth_refining(diagnosis: Diagnosis, effect: Effect, trials: int) -> bool:
     f_statistic, log10_p, detect, _ = diagnosis.tester.test(
         effect.design(diagnosis.readings, diagnosis.model)
     )
-    return detect > 0 and _corrected(log10_p, trials) < REFINE_GATE_LOG10
+    return detect > 0 and corrected(log10_p, trials) < REFINE_GATE_LOG10
 
 
 def _refine_local(
-    diagnosis: _Diagnosis,
+    diagnosis: Diagnosis,
     bump: Callable[[float, float], LocalDefect],
     center: float,
     width: float,
@@ -717,7 +717,7 @@ def narrow_bump(
     readings fix."""
     readings, model = identification.readings, identification.model
     axis, direction = free.axis_name, free.direction
-    diagnosis = _Diagnosis(_Tester(identification), readings, model, set(exclude))
+    diagnosis = Diagnosis(Tester(identification), readings, model, set(exclude))
     narrowest = _bump_spacing(readings, axis, direction)
     widths = [w for w in NARROW_WIDTHS_MM if w < narrowest]
     low, high = model.machine.stroke(axis)
@@ -742,4 +742,4 @@ def narrow_bump(
     )
     if found is None:
         return None
-    return replace(found, log10_false_alarm=_corrected(found.log10_false_alarm, tested))
+    return replace(found, log10_false_alarm=corrected(found.log10_false_alarm, tested))

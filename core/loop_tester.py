@@ -21,7 +21,7 @@ from .measurement import LineSpec
 from .readings import Readings
 
 #: A column of a candidate, or a group of a fitted contribution in a size test
-#: (:meth:`_Tester.test_split`), is left out when the model takes up all but this share of its
+#: (:meth:`Tester.test_split`), is left out when the model takes up all but this share of its
 #: weighted energy: together, the directions of several such columns are too close to null for
 #: rounding to leave their test alone.
 USEFUL_SHARE = 1e-4
@@ -34,7 +34,7 @@ USEFUL_SHARE = 1e-4
 USEFUL_SHARE_ONE_COLUMN = 1e-9
 
 
-def _noise_variance(identification: Identification) -> float:
+def noise_variance(identification: Identification) -> float:
     """The weighted residual variance of a fit (σ², per degree of freedom): the unit a test's
     χ² is counted in."""
     residual = identification.residual
@@ -42,7 +42,7 @@ def _noise_variance(identification: Identification) -> float:
     return float(np.sum(identification.system.weights * residual**2) / dof)
 
 
-class _Tester:
+class Tester:
     """Tests candidate columns against an identification's residual."""
 
     def __init__(self, identification: Identification) -> None:
@@ -59,7 +59,7 @@ class _Tester:
             (np.ones(n), (system.target_of_reading, np.arange(n))), shape=(n_targets, n)
         )
         self.dof = max(len(self.r) - identification.fitted_rank, 1)
-        self.sigma2 = _noise_variance(identification)
+        self.sigma2 = noise_variance(identification)
 
     def drop(self, columns: FloatArray) -> float:
         """The drop of the weighted residual sum of squares (σ²) that adding ``columns`` would
@@ -206,7 +206,7 @@ class _Tester:
         return np.asarray(g**2 / np.maximum(dtwd, 1e-300) / self.sigma2)
 
 
-def _moving_axes(readings: Readings) -> dict[str, bool]:
+def moving_axes(readings: Readings) -> dict[str, bool]:
     """Axes that move (with both approach directions) in at least one displacement line."""
     out = {}
     for axis in AXES:
@@ -235,10 +235,10 @@ def _where(readings: Readings, columns: FloatArray, beta: FloatArray) -> str:
 
 
 @dataclass
-class _Diagnosis:
+class Diagnosis:
     """What one diagnosis step collects."""
 
-    tester: _Tester
+    tester: Tester
     readings: Readings
     model: ErrorModel
     excluded: set[EffectKey]
@@ -265,7 +265,7 @@ class _Diagnosis:
         finding = Finding(
             effect,
             f,
-            _corrected(log10_p, trials),
+            corrected(log10_p, trials),
             trials,
             effect.magnitude_um(beta),
             detect,
@@ -277,29 +277,29 @@ class _Diagnosis:
         return finding
 
 
-def _corrected(log10_p: float, trials: int) -> float:
+def corrected(log10_p: float, trials: int) -> float:
     """Bonferroni in log10: min(1, p·trials)."""
     return min(0.0, log10_p + float(np.log10(max(trials, 1))))
 
 
-def _unit(spec: LineSpec) -> str:
+def line_unit(spec: LineSpec) -> str:
     """The unit of a line's readings."""
     return "µrad" if spec.quantity == "angular" else "µm"
 
 
-def _log10_text(p: float) -> str:
+def log10_text(p: float) -> str:
     """log10 of a false-alarm level for a sentence; below what a double holds, said so."""
     return f"{np.log10(p):.0f}" if p >= 1e-300 else "below −300"
 
 
-def _cell_key(readings: Readings, index: int) -> NDArray[np.int64]:
+def cell_key(readings: Readings, index: int) -> NDArray[np.int64]:
     """Per reading of a line, its cell: the target and the approach direction."""
     mask = readings.line == index
     direction = readings.lines[index].data.run_direction[readings.run[mask]]
     return np.asarray(readings.target[mask] * 2 + (direction > 0), dtype=np.int64)
 
 
-def _exchange(readings: Readings) -> FloatArray:
+def exchange(readings: Readings) -> FloatArray:
     """Per reading, the factor that puts its residual on the displacement lines' scale: 1 for a
     displacement reading; for an angular one, the displacement lines' median repeatability over
     the angular lines' (1 where the plan has one quantity only). The loop's comparisons weigh a
@@ -312,19 +312,19 @@ def _exchange(readings: Readings) -> FloatArray:
     return out
 
 
-def _rms(residual: FloatArray, readings: Readings, rows: NDArray[np.bool_]) -> float:
+def rms_over(residual: FloatArray, readings: Readings, rows: NDArray[np.bool_]) -> float:
     """RMS of ``residual`` over ``rows``, angular readings on the displacement scale."""
-    scaled = residual[rows] * _exchange(readings)[rows]
+    scaled = residual[rows] * exchange(readings)[rows]
     return float(np.sqrt(np.mean(scaled**2))) if scaled.size else float("nan")
 
 
-def _fit_metric(identification: Identification, rows: NDArray[np.bool_]) -> float:
+def fit_metric(identification: Identification, rows: NDArray[np.bool_]) -> float:
     """RMS of the fit's own residual over ``rows``, in displacement units (µm, or µrad for a
     plan of angular lines only)."""
     residual = identification.residual
-    return _rms(residual, identification.readings, rows & np.isfinite(residual))
+    return rms_over(residual, identification.readings, rows & np.isfinite(residual))
 
 
-def _and(names: Sequence[str], word: str = "and") -> str:
+def in_words(names: Sequence[str], word: str = "and") -> str:
     """Names joined in words: A; A and B; A, B and C (with ``word`` "or": A, B or C)."""
     return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} {word} {names[-1]}"

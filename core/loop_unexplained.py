@@ -11,8 +11,8 @@ from numpy.typing import NDArray
 from scipy import special
 
 from .identify import CrossValidation, Identification
-from .loop_compare import _predicted
-from .loop_courses import _centred, _moving_one_axis, _scales_in_time, _unsteady_scales
+from .loop_compare import predicted_rows
+from .loop_courses import cell_centred, moving_one_axis, scales_in_time, unsteady_scales
 from .loop_records import (
     ONE_LINE_CANNOT_TELL,
     EffectKey,
@@ -21,7 +21,7 @@ from .loop_records import (
     Step,
     Unexplained,
 )
-from .loop_tester import _and, _cell_key, _log10_text, _unit
+from .loop_tester import cell_key, in_words, line_unit, log10_text
 from .machine import AXES
 from .readings import Readings
 
@@ -32,15 +32,15 @@ def unexplained(
     alpha: float = 1e-4,
 ) -> list[Unexplained]:
     """Lines whose residual is larger than their repeatability allows, and what it follows
-    (:func:`_unexplained_by_line`)."""
-    by_line = dict(_unexplained_by_line(identification, cross_validation, alpha))
+    (:func:`unexplained_by_line`)."""
+    by_line = dict(unexplained_by_line(identification, cross_validation, alpha))
     jumps = _jumps(identification, alpha, set(by_line))
     found = [jumps.pop(index, item) for index, item in by_line.items()]
     return found + list(jumps.values()) + _scales_apart(identification, alpha)
 
 
 class _Jump(NamedTuple):
-    """The strongest step in time within one line (:func:`_step_in_time`)."""
+    """The strongest step in time within one line (:func:`step_in_time`)."""
 
     #: false-alarm level of the largest step over every split, Bonferroni over the splits
     p: float
@@ -65,7 +65,7 @@ class _Jump(NamedTuple):
     smooth_gain: float
 
 
-def _step_in_time(readings: Readings, residual: FloatArray, index: int) -> _Jump | None:
+def step_in_time(readings: Readings, residual: FloatArray, index: int) -> _Jump | None:
     """The strongest step in time within line ``index``: every split of its readings in time
     order into an earlier and a later part, each tested for an offset between them in what the
     model leaves about each target's mean per direction (:func:`_line_parts`).
@@ -77,7 +77,7 @@ def _step_in_time(readings: Readings, residual: FloatArray, index: int) -> _Jump
     The largest is held to ``2 Φ(−|z|)`` times the number of splits (Bonferroni), a bound:
     neighbouring splits are alike, and σ holds the step, so the level is conservative, a line
     with few readings more so; a beam cut near the last readings, two or three readings a few σ
-    off, passes it where the targets' means and the time test of :func:`_line_test` dilute
+    off, passes it where the targets' means and the time test of :func:`line_test` dilute
     them. Splits fall between readings at different times only. A step from the start up to a
     split is the same test (``u`` of the earlier readings is −``u``). Beside it, what a smooth
     course in time (:func:`_time_fit`) takes of the same residual, which a drift fills better
@@ -86,7 +86,7 @@ def _step_in_time(readings: Readings, residual: FloatArray, index: int) -> _Jump
     mask = readings.line == index
     _, _, rest, time = _line_parts(readings, residual, index)
     smooth = _time_fit(rest, time, readings.target_mm[mask])
-    key = _cell_key(readings, index)
+    key = cell_key(readings, index)
     order = np.argsort(time, kind="stable")[::-1]  # latest first: the later part grows
     cells = key[order]
     counts = np.bincount(key)
@@ -130,10 +130,10 @@ def _step_in_time(readings: Readings, residual: FloatArray, index: int) -> _Jump
 def _jumps(
     identification: Identification, alpha: float, reported: set[int]
 ) -> dict[int, Unexplained]:
-    """Lines whose readings step at one moment (:func:`_step_in_time`) beyond what their
+    """Lines whose readings step at one moment (:func:`step_in_time`) beyond what their
     repeatability allows, at ``alpha`` Bonferroni over the lines, and more than a smooth course
     in time would take, by index; of the lines ``reported`` already
-    (:func:`_unexplained_by_line`), those the step explains: without it, none of their tests
+    (:func:`unexplained_by_line`), those the step explains: without it, none of their tests
     is beyond the level any more, a line that repeated far worse than its peers no longer does,
     and the line steps nowhere else.
 
@@ -153,7 +153,7 @@ def _jumps(
         mask = readings.line == index
         if not mask.any():
             continue
-        jump = _step_in_time(readings, residual, index)
+        jump = step_in_time(readings, residual, index)
         if jump is None or jump.p * count >= alpha or jump.gain <= jump.smooth_gain:
             # no step, or one that only stands in for a course in time (a drift the model
             # lacks, which the tests of the line report as such)
@@ -161,17 +161,17 @@ def _jumps(
         # the step taken out, the line's mean kept (its zero offset is the fit's)
         without = residual.copy()
         without[mask] -= jump.size * (jump.later - jump.later.mean())
-        again = _step_in_time(readings, without, index)
+        again = step_in_time(readings, without, index)
         more = again is not None and again.p * count < alpha
         # taken out, the step only lowers the line's spread: a line that still repeats worse
         # than its peers did so with it
         if index in reported and (
             more
-            or _systematic(_line_test(readings, without, index), count, alpha, True)
-            or index in _wandering(replace(identification, residual=without), alpha)
+            or is_systematic(line_test(readings, without, index), count, alpha, True)
+            or index in wandering_lines(replace(identification, residual=without), alpha)
         ):
             continue
-        unit = _unit(line.spec)
+        unit = line_unit(line.spec)
         position = float(line.data.targets_mm[jump.target])
         minutes = jump.time_s / 60.0
         if more:
@@ -193,7 +193,7 @@ def _jumps(
                 f"({minutes:.1f} min into the session) on: its {jump.after} readings "
                 f"from there and its {jump.before} before differ by "
                 f"{abs(jump.size) / jump.sigma:.1f} "
-                f"times its repeatability (log10 false alarm {_log10_text(jump.p)}, "
+                f"times its repeatability (log10 false alarm {log10_text(jump.p)}, "
                 f"over every moment of the line); {what}; measure the line again"
             ),
             magnitude_um=abs(jump.size),
@@ -203,7 +203,7 @@ def _jumps(
 
 
 def _scales_apart(identification: Identification, alpha: float) -> list[Unexplained]:
-    """Axes whose scale changes in time beyond the model (:func:`_scales_in_time`) and whose
+    """Axes whose scale changes in time beyond the model (:func:`scales_in_time`) and whose
     linear lines, moving the axis alone at different times, read different scales: each line's
     scale relative to the model (the least-squares slope of its residual over its targets)
     against its noise (the line's scatter about its targets' means per direction), a χ² of the
@@ -217,10 +217,10 @@ def _scales_apart(identification: Identification, alpha: float) -> list[Unexplai
     so is what leaves the lines' scales alike (a reflector that twitches, a beam cut: blind
     46012, 46033)."""
     readings = identification.readings
-    moving = _scales_in_time(identification, alpha)
+    moving = scales_in_time(identification, alpha)
     out = []
-    for axis, (p, line, _, combined) in sorted(_unsteady_scales(identification, moving).items()):
-        lines = [index for index, moved in _moving_one_axis(readings) if moved == axis]
+    for axis, (p, line, _, combined) in sorted(unsteady_scales(identification, moving).items()):
+        lines = [index for index, moved in moving_one_axis(readings) if moved == axis]
         if len(lines) < 3:
             continue
         scales = [_line_scale(identification, index) for index in lines]
@@ -240,9 +240,9 @@ def _scales_apart(identification: Identification, alpha: float) -> list[Unexplai
             for scale, index in sorted(zip(scales, lines, strict=True), key=lambda x: x[0].minutes)
         )
         within = (
-            f"its {combined} lines together at log10 false alarm {_log10_text(p)}"
+            f"its {combined} lines together at log10 false alarm {log10_text(p)}"
             if combined > 1
-            else f"line {line.name} at log10 false alarm {_log10_text(p)}"
+            else f"line {line.name} at log10 false alarm {log10_text(p)}"
         )
         out.append(
             Unexplained(
@@ -251,8 +251,8 @@ def _scales_apart(identification: Identification, alpha: float) -> list[Unexplai
                     f"the {len(lines)} linear lines moving {axis} alone, measured at different "
                     f"times, read different scales; relative to the model, at their mid-times: "
                     f"{listed} (χ² {chi2:.3g} on {len(lines) - 1} degrees of freedom beside "
-                    f"their noise, log10 false alarm {_log10_text(apart)}; without any one "
-                    f"line, {_log10_text(without)} at most); within the lines too the readings "
+                    f"their noise, log10 false alarm {log10_text(apart)}; without any one "
+                    f"line, {log10_text(without)} at most); within the lines too the readings "
                     f"follow the distance along them times a course in time ({within}): the "
                     f"scale of {axis} changes in time beyond the model, and no effect of the "
                     "catalogue explains it (a drift of the scale that does not settle, a "
@@ -282,9 +282,9 @@ def _line_scale(fit: Identification, index: int) -> _LineScale:
     q = readings.target_mm[rows] - readings.target_mm[rows].mean()
     r = fit.residual[rows]
     qq = max(float(q @ q), 1e-300)
-    _, cell = np.unique(_cell_key(readings, index), return_inverse=True)
+    _, cell = np.unique(cell_key(readings, index), return_inverse=True)
     counts = np.bincount(cell)
-    scatter = float(np.sum(_centred(cell, counts, r) ** 2)) / max(rows.size - counts.size, 1)
+    scatter = float(np.sum(cell_centred(cell, counts, r) ** 2)) / max(rows.size - counts.size, 1)
     _, run = np.unique(readings.run[rows], return_inverse=True)
     per_run = np.bincount(run, weights=q * r) / np.maximum(np.bincount(run, weights=q * q), 1e-300)
     return _LineScale(
@@ -311,7 +311,7 @@ def _apart(slope: FloatArray, variance: FloatArray) -> tuple[float, float]:
     return chi2, float(special.chdtrc(slope.size - 1, chi2))
 
 
-#: How a line's systematic residual is said to be no effect's (:func:`_unexplained_by_line`).
+#: How a line's systematic residual is said to be no effect's (:func:`unexplained_by_line`).
 NOTHING_EXPLAINS = "; no effect of the catalogue explains it"
 
 
@@ -348,7 +348,7 @@ def with_one_line_effects(
             out.append(item)
             continue
         best = named[0]
-        labels = _and([s.finding.effect.label for s in named], "or")
+        labels = in_words([s.finding.effect.label for s in named], "or")
         where = f" over the {best.improvement_over}" if best.improvement_over else ""
         verb = "was" if len(named) == 1 else "were"
         description = item.description.removesuffix(NOTHING_EXPLAINS) + (
@@ -361,7 +361,7 @@ def with_one_line_effects(
     return out
 
 
-def _unexplained_by_line(
+def unexplained_by_line(
     identification: Identification,
     cross_validation: CrossValidation | None = None,
     alpha: float = 1e-4,
@@ -383,21 +383,21 @@ def _unexplained_by_line(
     position, the approach direction and time. With a
     cross-validation, place and size come from its held-out residuals: a structure on one line is
     then sized as that line shows it, not as what is left after the fit bent the model towards it.
-    ``directions`` False leaves the direction test out (:func:`_systematic`), for the loop's
+    ``directions`` False leaves the direction test out (:func:`is_systematic`), for the loop's
     own judgements.
     """
     readings = identification.readings
     held_out = identification.residual
     if cross_validation is not None:
         # sized by the held-out residual where it is a prediction, by the fit's elsewhere
-        predicted, _ = _predicted(cross_validation, identification)
+        predicted, _ = predicted_rows(cross_validation, identification)
         held_out = np.where(predicted, cross_validation.residual, held_out)
     out: list[tuple[int, Unexplained]] = []
     reported = set()
     count = len(readings.lines)
     for index, line in enumerate(readings.lines):
-        test = _line_test(readings, identification.residual, index)
-        if not _systematic(test, count, alpha, directions):
+        test = line_test(readings, identification.residual, index)
+        if not is_systematic(test, count, alpha, directions):
             continue
         mask = readings.line == index
         n, valid = test.cells
@@ -406,7 +406,7 @@ def _unexplained_by_line(
         means = sums[valid] / n[valid]
         worst = int(np.argmax(np.abs(means)))
         position = float(line.data.targets_mm[np.flatnonzero(valid)[worst]])
-        unit = _unit(line.spec)
+        unit = line_unit(line.spec)
         magnitude = float(np.max(np.abs(means)))
         rms = float(np.sqrt(np.mean(means**2)))
         peak = None
@@ -460,7 +460,7 @@ STEADY_PEERS = 25.0
 
 
 class _LineTest(NamedTuple):
-    """The tests of :func:`_line_test` on one line."""
+    """The tests of :func:`line_test` on one line."""
 
     #: false-alarm level of a structure locked to position: the smaller of the χ² over the
     #: targets' means and of their largest (Bonferroni over the targets)
@@ -478,7 +478,7 @@ class _LineTest(NamedTuple):
     cells: tuple[IntArray, NDArray[np.bool_]]
 
 
-def _line_test(readings: Readings, residual: FloatArray, index: int) -> _LineTest:
+def line_test(readings: Readings, residual: FloatArray, index: int) -> _LineTest:
     """Whether line ``index``'s ``residual`` is larger than its repeatability allows: the mean
     residual over runs at each target against σ/√runs (a χ² over the targets for a structure
     spread along the line, the largest target mean for one a few targets wide that χ² dilutes),
@@ -509,7 +509,7 @@ def _direction_means(
 ) -> tuple[IntArray, FloatArray]:
     """Line ``index``'s readings and mean ``residual`` (over its readings of the line) per
     target (rows) and approach direction (columns: backward, forward); 0 where none."""
-    key = _cell_key(readings, index)
+    key = cell_key(readings, index)
     k = int(key.max()) // 2 + 1
     counts = np.bincount(key, minlength=2 * k).reshape(k, 2)
     sums = np.bincount(key, weights=residual, minlength=2 * k).reshape(k, 2)
@@ -548,8 +548,8 @@ def _direction_p_value(readings: Readings, r: FloatArray, index: int, sigma: flo
     return min(p_spread, p_peak, 1.0)
 
 
-class _Wander(NamedTuple):
-    """A line that repeats far worse than its peers (:func:`_wandering`)."""
+class Wander(NamedTuple):
+    """A line that repeats far worse than its peers (:func:`wandering_lines`)."""
 
     #: its spread about its per-target, per-direction means, and its steadiest peers'
     sigma: float
@@ -562,7 +562,7 @@ class _Wander(NamedTuple):
     unit: str
 
 
-def _wandering(identification: Identification, alpha: float) -> dict[int, _Wander]:
+def wandering_lines(identification: Identification, alpha: float) -> dict[int, Wander]:
     """Lines whose readings repeat far worse than the plan's other lines of the same quantity,
     by index.
 
@@ -585,7 +585,7 @@ def _wandering(identification: Identification, alpha: float) -> dict[int, _Wande
         if not mask.any():
             continue
         _, _, rest, _ = _line_parts(readings, identification.residual, index)
-        dof = int(mask.sum()) - np.unique(_cell_key(readings, index)).size
+        dof = int(mask.sum()) - np.unique(cell_key(readings, index)).size
         if dof > 0:
             spread[index] = (float(np.sum(rest**2)) / dof, dof)
     out = {}
@@ -604,18 +604,22 @@ def _wandering(identification: Identification, alpha: float) -> dict[int, _Wande
         peer_dof = int(np.median([d for _, d in peers]))
         p = float(special.fdtrc(dof, peer_dof, variance / reference))
         if p * count < alpha:
-            out[index] = _Wander(
-                float(np.sqrt(variance)), float(np.sqrt(reference)), p, len(peers), _unit(line.spec)
+            out[index] = Wander(
+                float(np.sqrt(variance)),
+                float(np.sqrt(reference)),
+                p,
+                len(peers),
+                line_unit(line.spec),
             )
     return out
 
 
 def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, Unexplained]]:
     """Lines whose readings repeat far worse than the plan's other lines of the same quantity
-    (:func:`_wandering`), reported with their indices."""
+    (:func:`wandering_lines`), reported with their indices."""
     readings = identification.readings
     out = []
-    for index, wander in _wandering(identification, alpha).items():
+    for index, wander in wandering_lines(identification, alpha).items():
         line = readings.lines[index]
         unit, sigma, typical = wander.unit, wander.sigma, wander.typical
         shares = _shares(readings, identification.residual, index)
@@ -629,7 +633,7 @@ def _unsteady(identification: Identification, alpha: float) -> list[tuple[int, U
                         f"{sigma / typical:.1f} times the {typical:.3g} {unit} that the steadiest "
                         f"quarter of the plan's {wander.peers} other {line.spec.quantity} lines "
                         "repeat to (F test, log10 false alarm "
-                        f"{_log10_text(wander.p)}): its readings change between runs or "
+                        f"{log10_text(wander.p)}): its readings change between runs or "
                         "within a run in a way no effect of the catalogue follows (a laser or "
                         "a reflector that wanders, a beam cut and re-zeroed, an error that "
                         "varies in time); weighted by its own spread, it bends the 21 errors "
@@ -659,7 +663,7 @@ def _line_parts(
     r = residual[mask]
     target = readings.target[mask]
     k = int(target.max()) + 1
-    key = _cell_key(readings, index)
+    key = cell_key(readings, index)
     counts = np.bincount(key, minlength=2 * k)
     cell = np.bincount(key, weights=r, minlength=2 * k) / np.maximum(counts, 1)
     has = counts > 0
@@ -710,25 +714,25 @@ def _time_p_value(readings: Readings, residual: FloatArray, index: int, sigma: f
     return float(special.chdtrc(4, chi2))
 
 
-def _systematic_lines(fitted: Identification, alpha: float) -> list[int]:
-    """The lines ``fitted`` leaves systematic (:func:`_systematic`), by index."""
+def systematic_lines(fitted: Identification, alpha: float) -> list[int]:
+    """The lines ``fitted`` leaves systematic (:func:`is_systematic`), by index."""
     readings = fitted.readings
     count = len(readings.lines)
     return [
         index
         for index in range(count)
-        if _systematic(_line_test(readings, fitted.residual, index), count, alpha)
+        if is_systematic(line_test(readings, fitted.residual, index), count, alpha)
     ]
 
 
-def _widespread(systematic: list[int], count: int) -> bool:
+def widespread(systematic: list[int], count: int) -> bool:
     """Whether as many of a plan's ``count`` lines are systematic as structure the model still
     lacks, rather than a few lines' own (:data:`WIDESPREAD_SHARE`, :data:`FEW_LINES`)."""
     return len(systematic) >= max(WIDESPREAD_SHARE * count, FEW_LINES + 1)
 
 
-def _systematic(test: _LineTest, lines: int, alpha: float, directions: bool = False) -> bool:
-    """Whether a line's tests (:func:`_line_test`) find it beyond its repeatability: the
+def is_systematic(test: _LineTest, lines: int, alpha: float, directions: bool = False) -> bool:
+    """Whether a line's tests (:func:`line_test`) find it beyond its repeatability: the
     position and time tests, each held to ``alpha`` / 2, Bonferroni over the ``lines``. With
     ``directions``, as :func:`unexplained` reports a line, the approach-direction test too
     (the position and direction tests are each the smaller of two levels, a χ² or F and a peak:
@@ -742,15 +746,15 @@ def _systematic(test: _LineTest, lines: int, alpha: float, directions: bool = Fa
 
 
 #: As many lines as this disagreeing with the rest are "a few lines" of their own to
-#: :func:`_gained_through_lines_it_leaves`, however few lines the plan has: three twitching
+#: :func:`gained_through_lines_it_leaves`, however few lines the plan has: three twitching
 #: lines are a quarter of the twelve-line plan (indep. 4700074).
 FEW_LINES = 3
 
 
-def _unexplained_lines(fit: Identification, cv: CrossValidation, alpha: float) -> set[str]:
+def unexplained_lines(fit: Identification, cv: CrossValidation, alpha: float) -> set[str]:
     """The names of the lines :func:`unexplained` reports on ``fit``."""
     lines = fit.readings.lines
-    return {lines[index].name for index, _ in _unexplained_by_line(fit, cv, alpha, False)}
+    return {lines[index].name for index, _ in unexplained_by_line(fit, cv, alpha, False)}
 
 
 #: A model that leaves structure on at least this share of its lines (reported unexplained)

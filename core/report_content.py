@@ -1058,7 +1058,7 @@ def _compensation(
                 "note",
             )
         )
-    blocks += _files(report.get("files", []), folder)
+    blocks += compensation_file_blocks(report.get("files", []), folder)
     return Section("Compensation", tuple(blocks))
 
 
@@ -1066,7 +1066,7 @@ def _compensation(
 CHECKSUM_LIMIT_BYTES = 64 * 1024 * 1024
 
 
-def _files(names: Sequence[str], folder: Path | None) -> list[Block]:
+def compensation_file_blocks(names: Sequence[str], folder: Path | None) -> list[Block]:
     """The run's compensation files with their checksums: only the names the run recorded, found
     in the folder or in its format folders (one level down). The folder comes from the project,
     and a project is data: a name that is not a plain file name, a link, a file outside the

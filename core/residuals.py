@@ -75,20 +75,20 @@ from .identify import (
     identify,
     residual_rms,
 )
-from .loop_audit import _audit
-from .loop_backward import _backward, _set_up_for_surface
-from .loop_choice import Shared, _shared, _shared_warnings, _with_surface_doubt
-from .loop_compare import _can_cross_validate, _compared, _Fitter
-from .loop_courses import _scales_in_time
+from .loop_audit import audit
+from .loop_backward import backward, set_up_for_surface
+from .loop_choice import Shared, shared_of, shared_warnings, with_surface_doubt
+from .loop_compare import Fitter, can_cross_validate, cv_compared
+from .loop_courses import scales_in_time
 from .loop_end import (
-    _choose_spacing,
-    _in_basis,
-    _other_route,
-    _surface_doubts_at_the_end,
-    _time_constant_doubts,
-    _with_shape_doubt,
+    choose_spacing,
+    in_basis,
+    other_route,
+    surface_doubts_at_the_end,
+    time_constant_doubts,
+    with_shape_doubt,
 )
-from .loop_forward import AUDIT_ROUNDS, _forward, _prune
+from .loop_forward import AUDIT_ROUNDS, forward, prune
 from .loop_judge import BOTH_WAYS, PLACED_AGAIN, TOGETHER
 from .loop_records import (
     ESTIMATED_AGAIN,
@@ -102,8 +102,8 @@ from .loop_records import (
     group_rms,
     line_group,
 )
-from .loop_search import _periods_text, diagnose
-from .loop_state import _State
+from .loop_search import diagnose, periods_text
+from .loop_state import State
 from .loop_unexplained import unexplained, with_one_line_effects
 from .measurement import Measurement
 from .progress import CancelToken, ProgressCallback, report
@@ -181,10 +181,10 @@ class LoopResult:
         """Cross-validated RMS (µm, displacement lines) before and after the loop, over the
         readings the loop compares: those both the base and the final model predict (wild
         extrapolations are counted, not averaged in)."""
-        before, after, wild = _compared(
+        before, after, wild = cv_compared(
             self.cv_before, self.cv_after, self.base, um=True, other_fit=self.final
         )
-        judged = _compared(self.cv_before, self.cv_after, self.base, other_fit=self.final)
+        judged = cv_compared(self.cv_before, self.cv_after, self.base, other_fit=self.final)
         out: dict[str, object] = {
             "before_loop": before,
             "after_loop": after,
@@ -295,7 +295,7 @@ def _close_loop(
     redundant = base.identifiability.redundant_lines
     cv_base = cross_validate(base.system, readings, redundant)
     warnings = _cv_warnings(readings, cv_base, redundant)
-    why_not = _can_cross_validate(readings, cv_base)
+    why_not = can_cross_validate(readings, cv_base)
     spacing = SpacingChoice(
         options.identify.spacing_mm, options.identify.spacing_mm, {}, {}, cv_base.method
     )
@@ -308,10 +308,10 @@ def _close_loop(
         return LoopResult(
             base, base, cv_base, cv_base, (), tuple(leftover), tuple(warnings), (), spacing
         )
-    fit = _Fitter(measurement, readings, options, redundant, cancel)
-    state = _State(base, cv_base)
+    fit = Fitter(measurement, readings, options, redundant, cancel)
+    state = State(base, cv_base)
 
-    def rounds(state: _State, progress: ProgressCallback | None) -> None:
+    def rounds(state: State, progress: ProgressCallback | None) -> None:
         """The forward steps, the backward pass, the set-up errors in the place of surfaces and
         the audit, in rounds while the audit takes an effect out."""
         # the kept sets the rounds started from: where the audit leaves one of them, another
@@ -327,25 +327,25 @@ def _close_loop(
         for _ in range(AUDIT_ROUNDS):
             starts.append(frozenset(e.key for e in state.kept))
             first_row = len(state.steps)
-            _forward(state, fit, options, progress, cancel, base)
-            _prune(_backward, state, fit, base, cv_base, options)
+            forward(state, fit, options, progress, cancel, base)
+            prune(backward, state, fit, base, cv_base, options)
             placed = frozenset(e.key for e in state.kept)
-            _prune(_set_up_for_surface, state, fit, base, cv_base, options)
+            prune(set_up_for_surface, state, fit, base, cv_base, options)
             if frozenset(e.key for e in state.kept) != placed:  # a surface gave way: ask again
-                _prune(_backward, state, fit, base, cv_base, options)
+                prune(backward, state, fit, base, cv_base, options)
             before = frozenset(e.key for e in state.kept)
-            if not _prune(_audit, state, fit, base, cv_base, options):
+            if not prune(audit, state, fit, base, cv_base, options):
                 break
             left = frozenset(e.key for e in state.kept)
             if state.number >= options.max_steps:
                 break
             again = left in starts
-            if again and not _scales_in_time(state.current, options.alpha):
+            if again and not scales_in_time(state.current, options.alpha):
                 break
             # what the taken-out effect held is the others' again: every candidate is scored
             # anew, but the taken-out one (its key: a cycle at another period, a surface of
             # another order is another candidate) is not proposed until another is kept
-            # (:func:`_owed`): from the same model it would win the same step again, to be
+            # (:func:`owed_refit`): from the same model it would win the same step again, to be
             # taken out again (indep. 5000152: a cosine error of y_linear tied a drift of Y,
             # kept for its one parameter, was taken out as its line still drifted, and kept
             # again a round later)
@@ -363,17 +363,17 @@ def _close_loop(
                 state.refused_beside[key] = left
 
     rounds(state, progress)
-    state = _other_route(state, rounds, fit, options, progress, base)
-    _surface_doubts_at_the_end(state, fit, options, base, cv_base)
+    state = other_route(state, rounds, fit, options, progress, base)
+    surface_doubts_at_the_end(state, fit, options, base, cv_base)
     current, cv, kept = state.current, state.cv, state.kept
     if any(isinstance(e, AbbeOffset) for e in kept):
         current, cv = fit.converged(kept, current.model)
-    time_doubts, time_ranges, time_warnings = _time_constant_doubts(
+    time_doubts, time_ranges, time_warnings = time_constant_doubts(
         fit, current, kept, base, options
     )
     warnings += time_warnings
     report(progress, 0.9, "choosing the basis spacing by cross-validation")
-    current, cv, spacing = _choose_spacing(
+    current, cv, spacing = choose_spacing(
         measurement, readings, options, redundant, current, cv, cancel
     )
     warnings += state.warnings
@@ -382,14 +382,14 @@ def _close_loop(
     warnings += [text for e in kept for text in ambiguous.get(e.key, ())]
     warnings += [
         f"the cycle of {e.axis} kept at {e.period_mm:.4g} mm fits the readings about as well at "
-        f"{_periods_text(aliased[e.axis])}: the targets along {e.axis} are too regular to tell "
+        f"{periods_text(aliased[e.axis])}: the targets along {e.axis} are too regular to tell "
         "a cycle from its aliases, and between the targets they differ; targets spaced irregularly "
         "(as ISO 230-2 advises) tell them apart"
         for e in kept
         if isinstance(e, Cyclic) and e.searched and e.axis in aliased
     ]
-    shared = tuple(_shared(current, index) for index in range(len(current.effects)))
-    warnings += _shared_warnings(current, shared)
+    shared = tuple(shared_of(current, index) for index in range(len(current.effects)))
+    warnings += shared_warnings(current, shared)
     report(progress, 0.95, "looking for what is still unexplained")
     leftover = with_one_line_effects(
         unexplained(current, cv, options.alpha), steps, {e.key for e in kept}, options.margin
@@ -397,10 +397,10 @@ def _close_loop(
     doubts = [state.shape_doubt[e.key] for e in kept if e.key in state.shape_doubt]
     doubts += time_doubts
     if spacing.spacing_mm != spacing.reference_mm:
-        doubts = [_in_basis(np.atleast_2d(d), state.current.model, current.model) for d in doubts]
-    current = _with_shape_doubt(current, [*doubts, spacing.doubt])
-    current = _with_shape_doubt(current, [spacing.shape_missed], share=1.0)
-    current = _with_surface_doubt(current, state.surface_doubt)
+        doubts = [in_basis(np.atleast_2d(d), state.current.model, current.model) for d in doubts]
+    current = with_shape_doubt(current, [*doubts, spacing.doubt])
+    current = with_shape_doubt(current, [spacing.shape_missed], share=1.0)
+    current = with_surface_doubt(current, state.surface_doubt)
     report(progress, 1.0, "loop closed")
     rivals = tuple(state.rivals.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
     ranges = tuple(time_ranges.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]

@@ -17,10 +17,10 @@ from volucal.core.calibrate import summary_table
 from volucal.core.errors import BSplineBasis, ErrorFunction, ErrorModel, gauge_null_space
 from volucal.core.loop_judge import VERDICTS
 from volucal.core.loop_unexplained import (
-    _line_test,
-    _step_in_time,
-    _systematic,
-    _systematic_lines,
+    is_systematic,
+    line_test,
+    step_in_time,
+    systematic_lines,
 )
 from volucal.core.measurement import Line, LineData, Measurement
 from volucal.core.residuals import LoopOptions, close_loop
@@ -443,21 +443,21 @@ def test_a_line_that_drifts_in_time_is_not_reported_as_a_step() -> None:
     # unsystematic; only the smooth course in time taking more keeps it from being said
     fit, count = result.final, len(result.final.readings.lines)
     index = [line.name for line in fit.readings.lines].index(name)
-    jump = _step_in_time(fit.readings, fit.residual, index)
+    jump = step_in_time(fit.readings, fit.residual, index)
     assert jump is not None and jump.p * count < 1e-4
     mask = fit.readings.line == index
     without = fit.residual.copy()
     without[mask] -= jump.size * (jump.later - jump.later.mean())
-    assert not _systematic(_line_test(fit.readings, without, index), count, 1e-4, True)
+    assert not is_systematic(line_test(fit.readings, without, index), count, 1e-4, True)
     assert 0 < jump.gain < jump.smooth_gain
 
 
 def test_the_step_in_time_is_exact_without_noise_and_holds_its_false_alarm_level() -> None:
-    """The test of a step in time (``_step_in_time``) on residuals drawn directly: a step alone,
+    """The test of a step in time (``step_in_time``) on residuals drawn directly: a step alone,
     less its targets' means per direction, is sized exactly at its first reading, on the last
     40 readings as on all but the first; noise alone is held to its level (a Bonferroni bound
     over the splits: at most the level)."""
-    from volucal.core.loop_tester import _cell_key
+    from volucal.core.loop_tester import cell_key
     from volucal.core.readings import flatten
 
     truth = sim.random_truth(seed=19)
@@ -466,13 +466,13 @@ def test_the_step_in_time_is_exact_without_noise_and_holds_its_false_alarm_level
     index = 0
     mask = readings.line == index
     time = readings.time_s[mask]
-    key = _cell_key(readings, index)
+    key = cell_key(readings, index)
     residual = np.zeros(len(readings))
     for after in (40, int(mask.sum()) - 1):  # the last 40 readings in time; all but the first
         later = (time >= np.sort(time)[-after]).astype(float)
         cell_mean = np.bincount(key, weights=later) / np.maximum(np.bincount(key), 1)
         residual[mask] = 1.5 * (later - cell_mean[key])
-        jump = _step_in_time(readings, residual, index)
+        jump = step_in_time(readings, residual, index)
         assert jump is not None
         assert jump.size == pytest.approx(1.5, rel=1e-9)
         assert (jump.after, jump.before) == (after, int(mask.sum()) - after)
@@ -483,7 +483,7 @@ def test_the_step_in_time_is_exact_without_noise_and_holds_its_false_alarm_level
     levels = []
     for _ in range(400):
         residual[mask] = rng.normal(0.0, sigma, mask.sum())
-        levels.append(_step_in_time(readings, residual, index).p)  # type: ignore[union-attr]
+        levels.append(step_in_time(readings, residual, index).p)  # type: ignore[union-attr]
     # 400 draws: at most 5 % + 3 binomial standard deviations below 0.05
     assert np.mean(np.array(levels) < 0.05) <= 0.05 + 3 * np.sqrt(0.05 * 0.95 / 400)
 
@@ -519,7 +519,7 @@ def test_a_difference_between_the_directions_of_one_line_is_reported_and_sized()
     # the loop's own judgements of the lines a model leaves systematic (a surface's, a set-up's,
     # the spacing's) do not count it: a difference between the directions is no shape they take
     index = [line.name for line in lines].index(name)
-    assert index not in _systematic_lines(result.final, LoopOptions().alpha)
+    assert index not in systematic_lines(result.final, LoopOptions().alpha)
 
 
 def test_an_error_periodic_in_time_along_one_axis_is_reported_on_every_line_that_moves_it() -> None:
@@ -591,7 +591,7 @@ def test_cycles_below_half_the_spacing_are_searched_only_where_no_spacing_repeat
     """Targets every 12 mm repeat at 1/12 mm⁻¹: a cycle below 6 mm has aliases as good, and is
     not searched. Targets jittered ±6 mm repeat at no lag (their spectral window stays below
     0.5), so the search runs down to 2 mm and no warning says a shorter cycle goes unseen."""
-    from volucal.core.loop_search import _irregular_targets
+    from volucal.core.loop_search import irregular_targets
     from volucal.core.readings import flatten
 
     truth = sim.random_truth(seed=16)
@@ -599,7 +599,7 @@ def test_cycles_below_half_the_spacing_are_searched_only_where_no_spacing_repeat
     measured = vm.measure(plans.layout("direct", truth.machine, 12.0, jitter_mm))
     lines = tuple(line for line in measured.lines if not line.name.startswith("diag"))
     measurement = Measurement(measured.machine, lines)
-    assert _irregular_targets(flatten(measurement), "X") is irregular
+    assert irregular_targets(flatten(measurement), "X") is irregular
     if irregular:
         report = close_loop(measurement).to_report()
         assert not [w for w in report["warnings"] if "none shorter than" in w], report["warnings"]
@@ -687,18 +687,18 @@ def test_the_console_says_why_an_effect_was_taken_out_and_what_was_kept_together
 
 def test_a_refit_within_its_uncertainty_of_nothing_is_refused_on_its_wald_statistic() -> None:
     # χ² with 1 degree of freedom: 2 σ leaves 4.6 % (refused at the 1 % level), 3 σ 0.27 %
-    from volucal.core.loop_judge import NULL_LEVEL, _indistinguishable_from_nothing
+    from volucal.core.loop_judge import NULL_LEVEL, indistinguishable_from_nothing
 
     assert NULL_LEVEL == 0.01
     one = np.array([[0.25]])  # σ = 0.5
-    assert "nothing" in _indistinguishable_from_nothing(np.array([1.0]), one)
-    assert _indistinguishable_from_nothing(np.array([1.5]), one) is None
+    assert "nothing" in indistinguishable_from_nothing(np.array([1.0]), one)
+    assert indistinguishable_from_nothing(np.array([1.5]), one) is None
     # two correlated parameters: along the correlation β = (1, 1) is χ² 2/1.9 (nothing); across
     # it β = (1, −1) is χ² 2/0.1 = 20, exp(−10) on 2 degrees of freedom (something)
     correlated = np.array([[1.0, 0.9], [0.9, 1.0]])
-    why = _indistinguishable_from_nothing(np.array([1.0, 1.0]), correlated)
+    why = indistinguishable_from_nothing(np.array([1.0, 1.0]), correlated)
     assert why is not None and "Wald χ² 1.05 on 2 parameters" in why
-    assert _indistinguishable_from_nothing(np.array([1.0, -1.0]), correlated) is None
+    assert indistinguishable_from_nothing(np.array([1.0, -1.0]), correlated) is None
 
 
 def test_a_surface_states_its_standard_uncertainty_in_micrometres_over_its_strokes() -> None:

@@ -114,7 +114,7 @@ def test_a_shape_doubt_moves_to_the_chosen_basis_unchanged_where_both_bases_hold
         gauge_constraints,
     )
     from volucal.core.errors import default_basis as basis
-    from volucal.core.loop_end import STROKE_POINTS, _in_basis
+    from volucal.core.loop_end import STROKE_POINTS, in_basis
     from volucal.core.machine import PAPER_MACHINE
 
     fine = ErrorModel.zero(PAPER_MACHINE, lambda axis, _: basis(PAPER_MACHINE, axis, 50.0))
@@ -157,7 +157,7 @@ def test_a_shape_doubt_moves_to_the_chosen_basis_unchanged_where_both_bases_hold
             move[fine.parameter_slices[eid]] = nearest_gauged(fine, eid, q, shape)
         for eid in SQUARENESS_IDS:
             move[fine.parameter_slices[eid]] = rng.normal()
-        moved = _in_basis(move[None, :], fine, coarse)[0]
+        moved = in_basis(move[None, :], fine, coarse)[0]
         for eid in AXIS_ERROR_IDS:
             low, high = PAPER_MACHINE.stroke(str(ERROR_INFO[eid].axis))
             q = np.linspace(low, high, STROKE_POINTS)

@@ -776,16 +776,16 @@ def test_a_line_that_shows_a_bump_and_is_predicted_worse_with_it_refuses_it() ->
     # Z with 17.4 σ² and lost 14.7 σ² held out; the XZ diagonals that gained are not asked
     from types import SimpleNamespace
 
-    from volucal.core.loop_judge import _contradicted_by_a_line
+    from volucal.core.loop_judge import contradicted_by_a_line
 
     names = ("diag_xz_pp", "diag_xz_pp_b", "diag_xz_pm_b", "x_linear")
     readings = SimpleNamespace(lines=[SimpleNamespace(name=n) for n in names])
     energy = np.array([40.0, 35.0, 17.4, 3.0])
-    why = _contradicted_by_a_line(energy, np.array([30.0, 28.0, -14.7, -2.5]), readings)
+    why = contradicted_by_a_line(energy, np.array([30.0, 28.0, -14.7, -2.5]), readings)
     assert why is not None and why.startswith("line diag_xz_pm_b shows it (17.4 σ²")
     # predicted worse by less than half of what it shows, or shown by less than 16 σ²: not asked
-    assert _contradicted_by_a_line(energy, np.array([30.0, 28.0, -8.0, -2.5]), readings) is None
-    assert _contradicted_by_a_line(energy, np.array([30.0, 28.0, 5.0, -2.9]), readings) is None
+    assert contradicted_by_a_line(energy, np.array([30.0, 28.0, -8.0, -2.5]), readings) is None
+    assert contradicted_by_a_line(energy, np.array([30.0, 28.0, 5.0, -2.9]), readings) is None
 
 
 def test_a_bump_held_out_blocks_of_its_line_predict_worse_is_kept_beside_a_missing_cycle() -> None:
@@ -2047,8 +2047,8 @@ def test_the_final_audit_takes_out_a_bump_its_function_cancels() -> None:
     # kept effect in the model, asks it against the fit without it, as its step did
     from volucal.core.identify import cross_validate, identify
     from volucal.core.io.plan import import_plan, load_plan
-    from volucal.core.loop_audit import _audit
-    from volucal.core.loop_compare import _Fitter
+    from volucal.core.loop_audit import audit
+    from volucal.core.loop_compare import Fitter
     from volucal.core.readings import flatten
     from volucal.core.residuals import LoopOptions, close_loop
 
@@ -2067,11 +2067,11 @@ def test_the_final_audit_takes_out_a_bump_its_function_cancels() -> None:
     base = identify(measurement, options.identify, readings=readings)
     redundant = base.identifiability.redundant_lines
     cv_base = cross_validate(base.system, readings, redundant)
-    fit = _Fitter(measurement, readings, options, redundant, None)
+    fit = Fitter(measurement, readings, options, redundant, None)
     before, _ = fit(kept, base.model)
     current, cv = fit([*kept, bump], before.model)
     steps: list = []
-    *_, left = _audit(fit, current, cv, [*kept, bump], base, cv_base, options, steps, 9)
+    *_, left = audit(fit, current, cv, [*kept, bump], base, cv_base, options, steps, 9)
     assert left == kept
     assert [s.finding.effect for s in steps] == [bump]
     assert steps[0].stage == "audit" and "its error function cancels it" in steps[0].reason

@@ -111,7 +111,7 @@ def test_compensation_checksums_read_only_the_files_the_run_recorded(tmp_path):
     """The compensation folder is named by the project, and a project is data: the report reads
     the recorded names in that folder and its format folders, never what else is there, a link
     out of it or a name that climbs out."""
-    from volucal.core.report_content import _files
+    from volucal.core.report_content import compensation_file_blocks
 
     folder = tmp_path / "compensation"
     (folder / "linuxcnc").mkdir(parents=True)
@@ -120,7 +120,7 @@ def test_compensation_checksums_read_only_the_files_the_run_recorded(tmp_path):
     secret = tmp_path / "secret.txt"
     secret.write_text("not ours")
     (folder / "link.comp").symlink_to(secret)
-    table = _files(["joint0_X.comp", "link.comp", "../secret.txt"], folder)[0]
+    table = compensation_file_blocks(["joint0_X.comp", "link.comp", "../secret.txt"], folder)[0]
     rows = {row[0]: row for row in table.rows}
     digest = hashlib.sha256(b"0 0 0\n").hexdigest()
     assert rows["linuxcnc/joint0_X.comp"] == ("linuxcnc/joint0_X.comp", "6", digest)
