@@ -143,14 +143,20 @@ def test_tolerances_give_pass_and_fail_in_the_measurement_view(qtbot, window):
     assert view.figures.item(rows["accuracy A"], 3).text() == ""
 
 
-def test_a_calibrate_project_opens_with_every_pane_filled(qtbot, demo_project):
-    """`volucal calibrate` stores the residuals, the effects tried and the sensitivity arrays."""
+def _loop_identification_of(qtbot, project):
+    """A main window on ``project``, showing the loop's identification: the window and view."""
     window = MainWindow()
     qtbot.addWidget(window, before_close_func=lambda w: w.document.undo_stack.setClean())
     window.show()
-    assert window.open_project(demo_project)
+    assert window.open_project(project)
     view = window.show_view("identification")
     view.select("loop")
+    return window, view
+
+
+def test_a_calibrate_project_opens_with_every_pane_filled(qtbot, demo_project):
+    """`volucal calibrate` stores the residuals, the effects tried and the sensitivity arrays."""
+    window, view = _loop_identification_of(qtbot, demo_project)
     assert view.lines.rowCount() == 49
     assert "Every one of the 49 lines is redundant" in view.report.toPlainText()
     view.select("main")
@@ -401,12 +407,7 @@ def test_the_squareness_between_the_tool_paths_is_shown_beside_the_parameter(
         qtbot, demo_project, demo_run):
     # a project `volucal calibrate` wrote, opened: the loop's map as report.json has it, as a
     # square would read it, at the centre of the measured volume ± U (k = 2) and its range
-    window = MainWindow()
-    qtbot.addWidget(window, before_close_func=lambda w: w.document.undo_stack.setClean())
-    window.show()
-    assert window.open_project(demo_project)
-    view = window.show_view("identification")
-    view.select("loop")
+    window, view = _loop_identification_of(qtbot, demo_project)
     mapped = window.document.identification("loop").squareness_map
     assert mapped == json.loads((demo_run / "report.json").read_text())["squareness_over_volume"]
     header = [view.squareness.horizontalHeaderItem(c).text() for c in range(5)]
