@@ -560,7 +560,7 @@ def unabsorbed_by_line(scenario: Scenario, outside: bool = False) -> dict[str, d
     return out
 
 
-def _gauged(values: np.ndarray, q: np.ndarray, straightness: bool) -> np.ndarray:
+def gauged(values: np.ndarray, q: np.ndarray, straightness: bool) -> np.ndarray:
     """A function with its gauge removed: zero at the stroke start and, for a straightness,
     zero least-squares slope (DESIGN.md "Gauges")."""
     if straightness:
@@ -676,10 +676,10 @@ def _folded(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
     return added, design, _stated_joint(result, [eid], list(effects))
 
 
-def _single_axis_model(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, float]:  # type: ignore[no-untyped-def]
+def single_axis_model(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, float]:  # type: ignore[no-untyped-def]
     """volucal's counterpart of :func:`_single_axis_truth` at q, the function's with every kept
     effect folded into it, and the RMS over q of its stated standard uncertainty with the gauge
-    taken out as :func:`_gauged` takes it out of the error, √(tr(G D C Dᵀ Gᵀ)/n), from the joint
+    taken out as :func:`gauged` takes it out of the error, √(tr(G D C Dᵀ Gᵀ)/n), from the joint
     stated covariance (:func:`_folded`): the band of the quantity the error is. A folded effect
     is not gauged in the model, and its slope and its value at the stroke's start, which the
     error does not hold, would widen a pointwise band (blind 54192: worst ratio 2.51 against
@@ -693,7 +693,7 @@ def _single_axis_model(result, eid: str, q: np.ndarray) -> tuple[np.ndarray, flo
 
 
 def _gauge_design(design: np.ndarray, q: np.ndarray, straightness: bool) -> np.ndarray:
-    """Columns of a function's (or a folded effect's) design with the gauges :func:`_gauged`
+    """Columns of a function's (or a folded effect's) design with the gauges :func:`gauged`
     removes taken out: a straightness's least-squares slope over q, then the value at the
     start."""
     if straightness:
@@ -702,15 +702,15 @@ def _gauge_design(design: np.ndarray, q: np.ndarray, straightness: bool) -> np.n
 
 
 def _slope_weights(q: np.ndarray) -> np.ndarray:
-    """Weights w with w @ values the least-squares slope of values over q (:func:`_slope`)."""
+    """Weights w with w @ values the least-squares slope of values over q (:func:`ls_slope`)."""
     centred = q - q.mean()
     return centred / np.sum(centred**2)
 
 
 def expected_errors(result) -> dict[str, float]:  # type: ignore[no-untyped-def]
     """Per identified function, the RMS error over its stroke (gauge removed as
-    :func:`_gauged` removes it) that its stated covariance alone predicts, with the kept effects
-    folded into it (:func:`_single_axis_model`); per
+    :func:`gauged` removes it) that its stated covariance alone predicts, with the kept effects
+    folded into it (:func:`single_axis_model`); per
     squareness, the stated standard uncertainty of the angle :func:`squareness_errors` compares
     (:func:`_angle_spread`). What an unbiased fit with those bands would miss the truth by:
     where it is near the bound, no fit of that plan and noise meets the bound reliably."""
@@ -720,7 +720,7 @@ def expected_errors(result) -> dict[str, float]:  # type: ignore[no-untyped-def]
         if eid in model.squareness_urad:
             out[eid] = _angle_spread(result, eid)
             continue
-        out[eid] = _single_axis_model(result, eid, _stroke_points(model, eid))[1]
+        out[eid] = single_axis_model(result, eid, _stroke_points(model, eid))[1]
     return out
 
 
@@ -770,10 +770,10 @@ def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, f
         q = np.linspace(low, high, 161)
         straightness = eid[1] in AXES and eid[1] != eid[2]
         truth_total = _single_axis_truth(scenario, eid, q)
-        model, spread = _single_axis_model(result, eid, q)
+        model, spread = single_axis_model(result, eid, q)
         if straightness:
-            slopes[eid] = (_slope(truth_total, q), _slope(model, q))
-        difference = _gauged(model, q, straightness) - _gauged(truth_total, q, straightness)
+            slopes[eid] = (ls_slope(truth_total, q), ls_slope(model, q))
+        difference = gauged(model, q, straightness) - gauged(truth_total, q, straightness)
         functions[eid] = float(np.sqrt(np.mean(difference**2)))
         if spread > 0:
             worst_ratio = max(worst_ratio, functions[eid] / spread)
@@ -783,7 +783,7 @@ def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, f
     return functions, squareness, max(worst_ratio, squareness_ratio(result, squareness))
 
 
-def _slope(values: np.ndarray, q: np.ndarray) -> float:
+def ls_slope(values: np.ndarray, q: np.ndarray) -> float:
     """Least-squares slope (µm/mm) of a function over its stroke."""
     return float(np.polyfit(q, values, 1)[0])
 

@@ -22,10 +22,10 @@ from loop_scenarios import (
     MATERIAL_CHANGE_C,
     VISIBLE_FACTOR,
     Outcome,
-    _gauged,
-    _slope,
     expected_errors,
+    gauged,
     kept_effects,
+    ls_slope,
     squareness_errors,
     squareness_ratio,
 )
@@ -148,7 +148,7 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
     its gauge removed, cycles and local defects folded into the function they change and
     surfaces folded in along the line through the middle of the other strokes
     (:func:`loop_scenarios.fold_states`; the generator's and volucal's alike)."""
-    from loop_scenarios import _single_axis_model, fold_states
+    from loop_scenarios import fold_states, single_axis_model
 
     single: dict[str, list] = {}
     surfaces: dict[str, list] = {}
@@ -181,10 +181,10 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
             states = fold_states(stroke, eid[2], q)
             a, b = (states[:, "XYZ".index(axis)] for axis in effect.depends_on)
             value = value + effect.value(a, b)
-        model, spread = _single_axis_model(result, eid, q)
+        model, spread = single_axis_model(result, eid, q)
         if straightness:
-            slopes[eid] = (_slope(value, q), _slope(model, q))
-        difference = _gauged(model, q, straightness) - _gauged(value, q, straightness)
+            slopes[eid] = (ls_slope(value, q), ls_slope(model, q))
+        difference = gauged(model, q, straightness) - gauged(value, q, straightness)
         functions[eid] = float(np.sqrt(np.mean(difference**2)))
         if spread > 0:
             worst_ratio = max(worst_ratio, functions[eid] / spread)
