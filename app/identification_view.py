@@ -19,7 +19,6 @@ from PySide6.QtWidgets import (
     QComboBox,
     QDoubleSpinBox,
     QGraphicsPathItem,
-    QGroupBox,
     QHBoxLayout,
     QHeaderView,
     QLabel,
@@ -46,7 +45,8 @@ from .view_base import View
 K_BAND = 2.0
 #: The squareness table: the model's parameter, then the angle between the tool's paths
 #: (core/squareness_map.py) at the centre of the measured volume and over it.
-SQUARENESS_COLUMNS = ("squareness", "value", "U (k = 2)", "paths at centre", "paths over volume")
+SQUARENESS_COLUMNS = ("squareness", "value", "U (k = 2)", "paths at centre ± U",
+                      "paths lowest ± U", "paths highest ± U", "tilted by")
 
 
 class IdentificationView(View):
@@ -108,11 +108,11 @@ class IdentificationView(View):
         self.squareness.verticalHeader().setVisible(False)
         self.squareness.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
         self.squareness.horizontalHeader().setSectionResizeMode(
-            0, QHeaderView.ResizeMode.Stretch)
-        square_box = QGroupBox("Squareness")
-        square_box.setMinimumWidth(290)
-        square_layout = QVBoxLayout(square_box)
-        square_layout.addWidget(self.squareness)
+            QHeaderView.ResizeMode.ResizeToContents)
+        self.squareness.horizontalHeader().setStretchLastSection(True)
+        square_page = QWidget()
+        square_layout = QVBoxLayout(square_page)
+        square_layout.addWidget(self.squareness, 1)
         self.square_note = QLabel()
         self.square_note.setWordWrap(True)
         square_layout.addWidget(self.square_note)
@@ -144,15 +144,11 @@ class IdentificationView(View):
         self.tabs = QTabWidget()
         self.tabs.addTab(self.report, "Identifiability")
         self.tabs.addTab(residual_page, "Residual per line")
+        self.tabs.addTab(square_page, "Squareness")
 
-        lower = QSplitter(Qt.Orientation.Horizontal)
-        lower.addWidget(self.tabs)
-        lower.addWidget(square_box)
-        lower.setStretchFactor(0, 3)
-        lower.setStretchFactor(1, 1)
         splitter = QSplitter(Qt.Orientation.Vertical)
         splitter.addWidget(self.curves)
-        splitter.addWidget(lower)
+        splitter.addWidget(self.tabs)
         splitter.setStretchFactor(0, 3)
         splitter.setStretchFactor(1, 2)
         layout = QVBoxLayout(self)
@@ -279,11 +275,11 @@ class IdentificationView(View):
                      self.units.text(value, "urad"), self.units.text(expanded, "urad"),
                      *self._paths_cells(record.squareness_map.get(eid))]
             tips = [ERROR_INFO[eid].description] * 3 + [self._paths_tip(
-                record.squareness_map.get(eid))] * 2
+                record.squareness_map.get(eid))] * 4
             for column, (text, tip) in enumerate(zip(cells, tips, strict=True)):
                 cell = QTableWidgetItem(text)
                 cell.setToolTip(tip)
-                if column:
+                if 0 < column < len(cells) - 1:  # the numbers; names left
                     cell.setTextAlignment(Qt.AlignmentFlag.AlignRight
                                           | Qt.AlignmentFlag.AlignVCenter)
                 if not identified:
@@ -293,37 +289,33 @@ class IdentificationView(View):
         self.square_note.setText(
             "Value: the angle between the axes (ISO 230-1 signs). Paths: the angle between the "
             "tool point's least-squares paths along the two axes, as a square would read it, at "
-            "the centre of the measured volume and lowest … highest over 5 × 5 × 5 places in it "
-            "(hover for where). U is the expanded uncertainty, k = 2. View ▸ Units shows them "
-            "in arcsec.")
+            "the centre of the measured volume and lowest and highest over 5 × 5 × 5 places in "
+            "it; tilted by: a kept effect that bends a path. U is the expanded uncertainty, "
+            "k = 2. View ▸ Units shows them in arcsec.")
 
-    def _paths_cells(self, entry: dict | None) -> tuple[str, str]:
-        """The angle between the tool's paths at the centre ± U, and lowest … highest."""
+    def _paths_cells(self, entry: dict | None) -> tuple[str, ...]:
+        """The angle between the tool's paths at the centre, lowest and highest, each ± U and
+        with where, and the kept effects that tilt a path."""
         if not entry:
-            return "—", "—"
+            return ("—",) * 4
+        return (self._pm(entry, "at_centre"),
+                f"{self._pm(entry, 'lowest')} at {_at(entry['lowest_at_mm'])}",
+                f"{self._pm(entry, 'highest')} at {_at(entry['highest_at_mm'])}",
+                ", ".join(entry["tilted_by"]) or "—")
+
+    def _pm(self, entry: dict, key: str) -> str:
         u = self.units
-        centre = (f"{u.text(entry['at_centre_urad'], 'urad', False)} ± "
-                  f"{u.text(K_BAND * entry['at_centre_std_urad'], 'urad')}")
-        span = (f"{u.text(entry['lowest_urad'], 'urad', False)} … "
-                f"{u.text(entry['highest_urad'], 'urad')}")
-        return centre, span
+        return (f"{u.text(entry[f'{key}_urad'], 'urad', False)} ± "
+                f"{u.text(K_BAND * entry[f'{key}_std_urad'], 'urad')}")
 
     def _paths_tip(self, entry: dict | None) -> str:
         if not entry:
             return ("not mapped: the plan identifies this squareness and both straightness "
                     "functions of its axes only together, or the project predates the map")
-        u = self.units
-        lines = [f"the angle between the tool's paths over {_volume(entry['volume_mm'])}"]
-        for key, name in (("centre", "at the centre"), ("lowest", "lowest"),
-                          ("highest", "highest"), ("least_certain", "least certain")):
-            value_key = "at_centre" if key == "centre" else key
-            where = entry["centre_mm" if key == "centre" else f"{key}_at_mm"]
-            lines.append(f"{name}: {u.text(entry[f'{value_key}_urad'], 'urad', False)} ± "
-                         f"{u.text(K_BAND * entry[f'{value_key}_std_urad'], 'urad')} (k = 2) "
-                         f"at {_at(where)}")
-        if entry["tilted_by"]:
-            lines.append("tilted by " + ", ".join(entry["tilted_by"]))
-        return "\n".join(lines)
+        least = entry["least_certain_at_mm"]
+        return (f"the angle between the tool's paths over {_volume(entry['volume_mm'])}, at "
+                f"5 × 5 × 5 places; U (k = 2) is largest at {_at(least)}: "
+                f"{self._pm(entry, 'least_certain')}")
 
     def _fill_report(self, record: IdentificationRecord) -> None:
         ident = record.identifiability

@@ -410,18 +410,22 @@ def test_the_squareness_between_the_tool_paths_is_shown_beside_the_parameter(
     window, view = _loop_identification_of(qtbot, demo_project)
     mapped = window.document.identification("loop").squareness_map
     assert mapped == json.loads((demo_run / "report.json").read_text())["squareness_over_volume"]
-    header = [view.squareness.horizontalHeaderItem(c).text() for c in range(5)]
-    assert header[3:] == ["paths at centre", "paths over volume"]
+    header = [view.squareness.horizontalHeaderItem(c).text() for c in range(7)]
+    assert header[3:] == ["paths at centre ± U", "paths lowest ± U", "paths highest ± U",
+                          "tilted by"]
     for row, eid in enumerate(("EC0Y", "EB0Z", "EA0Z")):
         e = mapped[eid]
-        centre = view.squareness.item(row, 3)
-        assert centre.text() == (
-            f"{e['at_centre_urad']:.2f} ± {2 * e['at_centre_std_urad']:.2f} µrad")
-        assert view.squareness.item(row, 4).text() == (
-            f"{e['lowest_urad']:.2f} … {e['highest_urad']:.2f} µrad")
-        where = ", ".join(f"{v:g}" for v in e["lowest_at_mm"])
-        assert f"lowest: {e['lowest_urad']:.2f} ± {2 * e['lowest_std_urad']:.2f} µrad (k = 2) " \
-               f"at ({where}) mm" in centre.toolTip()
+        cells = [view.squareness.item(row, c).text() for c in range(3, 7)]
+        lowest = ", ".join(f"{v:g}" for v in e["lowest_at_mm"])
+        highest = ", ".join(f"{v:g}" for v in e["highest_at_mm"])
+        assert cells == [
+            f"{e['at_centre_urad']:.2f} ± {2 * e['at_centre_std_urad']:.2f} µrad",
+            f"{e['lowest_urad']:.2f} ± {2 * e['lowest_std_urad']:.2f} µrad at ({lowest}) mm",
+            f"{e['highest_urad']:.2f} ± {2 * e['highest_std_urad']:.2f} µrad at ({highest}) mm",
+            "—",
+        ]
+        least = ", ".join(f"{v:g}" for v in e["least_certain_at_mm"])
+        assert f"U (k = 2) is largest at ({least}) mm" in view.squareness.item(row, 3).toolTip()
     window.set_units("angle", "arcsec")
     shown = view.squareness.item(1, 3).text()
     assert shown.endswith(" arcsec")
