@@ -111,29 +111,24 @@ def test_the_project_keeps_the_map_and_the_certificate_prints_it(twisted: Simple
         assert row[4] == (", ".join(entry["tilted_by"]) or "—")
 
 
-def test_every_place_of_the_grid_reads_as_the_true_paths_there(tmp_path: Path) -> None:
-    # the same machine, every one of the 5 × 5 × 5 places: not only the extremes the report names
-    from volucal.core.calibrate import measured_range
-    from volucal.core.residuals import close_loop
+def test_every_place_of_the_grid_reads_as_the_true_paths_there(twisted: SimpleNamespace) -> None:
+    # every one of the 5 × 5 × 5 places report.json holds, not only those it names: within the
+    # issue's 2 µrad, and within 4 of the standard uncertainties stated there (over the bands
+    # benchmark's 512 maps, 64,000 places, the largest |error / uncertainty| of a map was 3.78)
+    from tests.blind.scenarios import build_scenario
 
-    from tests.blind.scenarios import build_scenario, write_scenario
-
-    plan, truth = write_scenario(590011, tmp_path)
-    fit = close_loop(import_plan(load_plan(plan)).measurement).final
-    source = LoopSource(fit, measured_range(fit))
     scenario = build_scenario(590011)
-    tool = np.asarray(truth["plan"]["tool_offset_mm"], float)
-    ranges = [source.measured_range_mm[axis] for axis in "XYZ"]
-    places = np.stack(
-        np.meshgrid(*[np.linspace(*r, GRID_PER_AXIS) for r in ranges], indexing="ij"), axis=-1
-    ).reshape(-1, 3)
-    for sid in SQUARENESS_IDS:
-        misses = [
-            path_angle(source, sid, p)
-            - true_path_angle(scenario, tool, sid, p, source.measured_range_mm)
-            for p in places
-        ]
+    tool = np.asarray(twisted.truth["plan"]["tool_offset_mm"], float)
+    for sid, entry in twisted.report["squareness_over_volume"].items():
+        ranges = {axis: tuple(entry["volume_mm"][axis]) for axis in "XYZ"}
+        places = entry["places"]
+        assert np.asarray(places["place_mm"]).shape == (GRID_PER_AXIS**3, 3)
+        true = np.array(
+            [true_path_angle(scenario, tool, sid, np.array(p), ranges) for p in places["place_mm"]]
+        )
+        misses = np.asarray(places["angle_urad"]) - true
         assert np.max(np.abs(misses)) <= 2.0, sid
+        assert np.max(np.abs(misses) / np.asarray(places["std_urad"])) <= 4.0, sid
 
 
 def test_a_machine_with_only_squareness_errors_has_that_angle_at_every_place() -> None:
