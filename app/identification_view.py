@@ -110,12 +110,39 @@ class IdentificationView(View):
         self.squareness.horizontalHeader().setSectionResizeMode(
             QHeaderView.ResizeMode.ResizeToContents)
         self.squareness.horizontalHeader().setStretchLastSection(True)
+        self.square_note = QLabel()
+        self.square_note.setWordWrap(True)
         square_page = QWidget()
         square_layout = QVBoxLayout(square_page)
         square_layout.addWidget(self.squareness, 1)
-        self.square_note = QLabel()
-        self.square_note.setWordWrap(True)
         square_layout.addWidget(self.square_note)
+        # a squareness's angle between the paths over the plane of its two axes, at one of the
+        # grid's levels of the third axis
+        self.square_id = QComboBox()
+        self.square_id.setObjectName("squarenessMapId")
+        self.square_id.currentIndexChanged.connect(self._draw_square_map)
+        self.square_level = QComboBox()
+        self.square_level.setObjectName("squarenessLevel")
+        self.square_level.currentIndexChanged.connect(self._draw_square_map)
+        self.square_plot = plots.make_plot()
+        self.square_plot.setObjectName("squarenessMap")
+        self.square_image = pg.ImageItem()
+        self.square_plot.addItem(self.square_image)
+        self.square_colorbar = pg.ColorBarItem(colorMap=pg.colormap.get("viridis"),
+                                               interactive=False, width=12)
+        self.square_colorbar.setImageItem(self.square_image,
+                                          insert_in=self.square_plot.getPlotItem())
+        plots.plain_axis(self.square_colorbar.axis)
+        map_page = QWidget()
+        map_layout = QVBoxLayout(map_page)
+        choice = QHBoxLayout()
+        choice.addWidget(QLabel("squareness"))
+        choice.addWidget(self.square_id)
+        choice.addWidget(QLabel("at"))
+        choice.addWidget(self.square_level)
+        choice.addStretch(1)
+        map_layout.addLayout(choice)
+        map_layout.addWidget(self.square_plot, 1)
 
         self.report = QTextBrowser()
         self.report.setObjectName("identifiabilityReport")
@@ -145,6 +172,7 @@ class IdentificationView(View):
         self.tabs.addTab(self.report, "Identifiability")
         self.tabs.addTab(residual_page, "Residual per line")
         self.tabs.addTab(square_page, "Squareness")
+        self.tabs.addTab(map_page, "Squareness map")
 
         splitter = QSplitter(Qt.Orientation.Vertical)
         splitter.addWidget(self.curves)
@@ -218,6 +246,8 @@ class IdentificationView(View):
             plot.setTitle(None)
         self.squareness.clearContents()
         self.square_note.clear()
+        self.square_image.clear()
+        self.square_plot.setTitle(None)
         self.not_identified = set()
         self.lines.setRowCount(0)
         self.residual_plot.clear()
@@ -286,12 +316,49 @@ class IdentificationView(View):
                     cell.setForeground(Qt.GlobalColor.gray)
                 self.squareness.setItem(row, column, cell)
         self.squareness.resizeColumnsToContents()
+        self._draw_square_map()
         self.square_note.setText(
             "Value: the angle between the axes (ISO 230-1 signs). Paths: the angle between the "
             "tool point's least-squares paths along the two axes, as a square would read it, at "
             "the centre of the measured volume and lowest and highest over 5 × 5 × 5 places in "
             "it; tilted by: a kept effect that bends a path. U is the expanded uncertainty, "
             "k = 2. View ▸ Units shows them in arcsec.")
+
+    def _draw_square_map(self) -> None:
+        """The angle between the tool's paths of the chosen squareness over the plane of its
+        two axes, at the chosen level of the third axis (the grid's places, as mapped)."""
+        self.square_image.clear()
+        mapped = self.record.squareness_map if self.record is not None else {}
+        ids = [sid for sid in SQUARENESS_IDS if sid in mapped]
+        _set_items(self.square_id, ids, 0)
+        if not ids:
+            self.square_level.clear()
+            self.square_plot.setTitle("this plan maps no squareness between the tool's paths",
+                                      size="9pt")
+            return
+        sid = self.square_id.currentText()
+        entry = mapped[sid]
+        first, second = entry["axes"]
+        third = next(axis for axis in AXES if axis not in (first, second))
+        places = np.asarray(entry["places"]["place_mm"], dtype=float)
+        angle = self.units.convert(entry["places"]["angle_urad"], "urad")
+        k1, k2, k3 = (AXES.index(a) for a in (first, second, third))
+        levels = np.unique(places[:, k3])
+        _set_items(self.square_level, [f"{third} = {v:g} mm" for v in levels], len(levels) // 2)
+        on = places[:, k3] == levels[self.square_level.currentIndex()]
+        u, v = np.unique(places[on, k1]), np.unique(places[on, k2])
+        plane = np.full((u.size, v.size), np.nan)
+        plane[np.searchsorted(u, places[on, k1]), np.searchsorted(v, places[on, k2])] = angle[on]
+        self.square_image.setImage(plane, autoLevels=False)
+        self.square_colorbar.setLevels((float(np.nanmin(plane)), float(np.nanmax(plane))))
+        du = (u[-1] - u[0]) / max(u.size - 1, 1)
+        dv = (v[-1] - v[0]) / max(v.size - 1, 1)
+        self.square_image.setRect(float(u[0] - du / 2), float(v[0] - dv / 2),
+                                  float(u[-1] - u[0] + du), float(v[-1] - v[0] + dv))
+        plots.style(self.square_plot.getPlotItem(), None, f"{first} (mm)", f"{second} (mm)")
+        self.square_plot.setTitle(
+            f"{sid}: angle between the tool's {first} and {second} paths through each place "
+            f"({self.units.symbol('urad')})", size="9pt")
 
     def _paths_cells(self, entry: dict | None) -> tuple[str, ...]:
         """The angle between the tool's paths at the centre, lowest and highest, each ± U and
@@ -427,3 +494,14 @@ def _at(place: list[float]) -> str:
 
 def _volume(volume: dict[str, list[float]]) -> str:
     return ", ".join(f"{axis} {a:g}…{b:g}" for axis, (a, b) in volume.items()) + " mm"
+
+
+def _set_items(box: QComboBox, texts: list[str], default: int) -> None:
+    """Give ``box`` these items, keeping its choice when they are the same (no signal)."""
+    if [box.itemText(i) for i in range(box.count())] == texts:
+        return
+    box.blockSignals(True)
+    box.clear()
+    box.addItems(texts)
+    box.setCurrentIndex(default if texts else -1)
+    box.blockSignals(False)

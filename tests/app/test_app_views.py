@@ -426,7 +426,21 @@ def test_the_squareness_between_the_tool_paths_is_shown_beside_the_parameter(
         ]
         least = ", ".join(f"{v:g}" for v in e["least_certain_at_mm"])
         assert f"U (k = 2) is largest at ({least}) mm" in view.squareness.item(row, 3).toolTip()
+    # the map tab: EB0Z between the X and Z paths at the lowest Y of the grid, place by place
+    view.tabs.setCurrentIndex(3)
+    view.square_id.setCurrentText("EB0Z")
+    view.square_level.setCurrentIndex(0)
+    assert view.square_level.currentText() == "Y = 0 mm"
+    e = mapped["EB0Z"]
+    places = np.asarray(e["places"]["place_mm"])
+    on = places[:, 1] == 0.0
+    x, z = np.unique(places[on, 0]), np.unique(places[on, 2])
+    expected = np.asarray(e["places"]["angle_urad"])[on].reshape(x.size, z.size)  # X slowest
+    assert np.array_equal(view.square_image.image, expected)
+    assert "EB0Z: angle between the tool's X and Z paths" in view.square_plot.getPlotItem(
+        ).titleLabel.text
     window.set_units("angle", "arcsec")
+    assert np.allclose(view.square_image.image, expected * 0.206265, atol=1e-3)
     shown = view.squareness.item(1, 3).text()
     assert shown.endswith(" arcsec")
     assert float(shown.split()[0]) == pytest.approx(
@@ -440,6 +454,8 @@ def test_a_plan_that_cannot_map_the_squareness_says_so(qtbot, window):
     assert window.document.identification("loop").squareness_map == {}
     assert view.squareness.item(0, 3).text() == "—"
     assert view.squareness.item(0, 3).toolTip().startswith("not mapped")
+    assert view.square_id.count() == 0 and view.square_image.image is None
+    assert "maps no squareness" in view.square_plot.getPlotItem().titleLabel.text
 
 
 def test_report_dialog_keeps_the_certificate_with_the_project(qtbot, window, wait_idle,
