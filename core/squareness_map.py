@@ -15,7 +15,9 @@ its standard uncertainty at every place from the fit's covariance of every unkno
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
@@ -139,7 +141,7 @@ def squareness_map(source: LoopSource) -> tuple[SquarenessAtPlaces, ...]:
                 volume_mm={axis: (_mm(a), _mm(b)) for axis, (a, b) in ranges.items()},
                 parameter_urad=float(fit.model.squareness_urad[sid]),
                 places_mm=places,
-                angle_urad=np.array([_angle(source, ranges, p, sid) for p in places]),
+                angle_urad=_angles(source, ranges, places, sid),
                 std_urad=np.sqrt(np.maximum(variances, 0.0)),
                 tilted_by=_tilting(source, ranges, places, sid),
             )
@@ -200,24 +202,47 @@ def _legs(
     return legs
 
 
+def _over_places(
+    ranges: dict[str, tuple[float, float]],
+    places: FloatArray,
+    sid: str,
+    per_leg: Callable[[FloatArray, FloatArray, int], FloatArray | float],
+) -> FloatArray:
+    """Per place, ``per_leg(states, weights, component)`` summed over its two paths
+    (:func:`_legs`). A path spans its axis' whole range, so the places along it share it: each
+    path is evaluated once."""
+    seen: dict[tuple[float, ...], FloatArray] = {}
+    out = []
+    for place in places:
+        total: FloatArray | float = 0.0
+        for states, weights, component in _legs(ranges, place, sid):
+            key = (component, *states[0], *states[-1])
+            if key not in seen:
+                seen[key] = np.asarray(per_leg(states, weights, component), dtype=float)
+            total = total + seen[key]
+        out.append(total)
+    return np.asarray(out, dtype=float)
+
+
 def path_angle(source: LoopSource, squareness_id: str, place_mm: FloatArray) -> float:
     """The angle (µrad) between the tool point's least-squares paths along the two axes of
     ``squareness_id`` through ``place_mm``, each over its axis' measured range, in the sign of
     that squareness (:data:`PATHS`)."""
-    return _angle(source, _ranges(source), np.asarray(place_mm, float), squareness_id)
+    place = np.asarray(place_mm, float)[None, :]
+    return float(_angles(source, _ranges(source), place, squareness_id)[0])
 
 
 def _ranges(source: LoopSource) -> dict[str, tuple[float, float]]:
     return {axis: source.measured_range_mm.get(axis, source.machine.stroke(axis)) for axis in AXES}
 
 
-def _angle(
-    source: LoopSource, ranges: dict[str, tuple[float, float]], place: FloatArray, sid: str
-) -> float:
-    total = 0.0
-    for states, weights, component in _legs(ranges, place, sid):
-        total += float(weights @ source.error_um(states)[:, component])
-    return PATHS[sid][2] * total
+def _angles(
+    source: LoopSource, ranges: dict[str, tuple[float, float]], places: FloatArray, sid: str
+) -> FloatArray:
+    def slope(states: FloatArray, weights: FloatArray, component: int) -> float:
+        return float(weights @ source.error_um(states)[:, component])
+
+    return PATHS[sid][2] * _over_places(ranges, places, sid, slope)
 
 
 def _gradients(
@@ -228,13 +253,11 @@ def _gradients(
     sid: str,
 ) -> FloatArray:
     """The angle's gradient at each of ``places`` over the fit's unknowns; ``mapping`` takes
-    them to the refined model's parameters (:func:`parameter_map`). A path spans its axis'
-    whole range, so the places along it share it: each path is differentiated once."""
+    them to the refined model's parameters (:func:`parameter_map`)."""
     fit = source.identification
     columns = [b.columns for b in fit.system.blocks if b.kind == "effect"]
     tool = source.machine.tool_offset_mm
     sign = PATHS[sid][2]
-    per_path: dict[tuple[float, ...], FloatArray] = {}
 
     def path_gradient(states: FloatArray, weights: FloatArray, component: int) -> FloatArray:
         design = jacobian(source.model, states, tool)[:, component, :]
@@ -249,14 +272,7 @@ def _gradients(
             gradient[at] += weights @ per_value
         return np.asarray(sign * gradient)
 
-    out = np.zeros((len(places), fit.system.size))
-    for i, place in enumerate(places):
-        for states, weights, component in _legs(ranges, place, sid):
-            key = (component, *states[0], *states[-1])
-            if key not in per_path:
-                per_path[key] = path_gradient(states, weights, component)
-            out[i] += per_path[key]
-    return out
+    return _over_places(ranges, places, sid, path_gradient)
 
 
 def _tilting(
@@ -266,12 +282,19 @@ def _tilting(
     than 1e-3 µrad."""
     labels = []
     for effect, values in source.effects:
-        for place in places:
-            legs = _legs(ranges, place, sid)
-            tilt = sum(
-                abs(float(w @ effect.error_um(values, source.machine, s)[:, c])) for s, w, c in legs
-            )
-            if tilt > 1e-3:
-                labels.append(effect.label)
-                break
+        tilt = partial(_effect_tilt, source, effect, values)
+        if np.any(_over_places(ranges, places, sid, tilt) > 1e-3):
+            labels.append(effect.label)
     return tuple(labels)
+
+
+def _effect_tilt(
+    source: LoopSource,
+    effect: Effect,
+    values: FloatArray,
+    states: FloatArray,
+    weights: FloatArray,
+    component: int,
+) -> float:
+    """How much ``effect`` tilts one path (µrad, absolute)."""
+    return abs(float(weights @ effect.error_um(values, source.machine, states)[:, component]))
