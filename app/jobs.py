@@ -7,7 +7,6 @@ Each job takes ``progress`` and ``cancel`` like the core steps it calls, so that
 from __future__ import annotations
 
 import hashlib
-import json
 import shutil
 import tempfile
 from collections.abc import Sequence
@@ -34,6 +33,7 @@ from volucal.core.project import Project
 from volucal.core.residuals import LoopOptions, LoopResult, close_loop
 from volucal.core.resources import demo_plan
 from volucal.core.result_trees import loop_result_trees
+from volucal.core.squareness_map import identification_squareness
 
 from .factors import RANKING_GRID_MM, SensitivitySetup, sensitivity_tree
 from .records import (
@@ -89,15 +89,12 @@ def run_identification(measurement: Measurement, options: IdentifyOptions,
                        progress: ProgressCallback | None = None,
                        cancel: CancelToken | None = None, name: str = "main") -> Identified:
     identification = identify(measurement, options, progress=progress, cancel=cancel)
-    tree = identification_result_tree(identification, options)
-    record = IdentificationRecord.from_identification(
-        name, identification, options, squareness_map=_squareness_of(tree))
-    return Identified(without_system(identification), options, record, tree)
-
-
-def _squareness_of(tree: dict[str, Any]) -> dict[str, Any]:
-    """The squareness map an identification tree holds (computed once, for tree and record)."""
-    return dict(json.loads(str(tree["squareness_map_json"])))
+    squareness = identification_squareness(identification)  # once, for tree and record
+    return Identified(
+        without_system(identification), options,
+        IdentificationRecord.from_identification(name, identification, options,
+                                                 squareness_map=squareness),
+        identification_result_tree(identification, options, squareness_map=squareness))
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,15 +109,16 @@ class LoopRun:
     @classmethod
     def of(cls, loop: LoopResult, options: LoopOptions) -> LoopRun:
         identify_options = options.identify
-        trees = loop_result_trees(loop, identify_options)
+        # once each, for trees and records
+        maps = {"main": identification_squareness(loop.base),
+                "loop": identification_squareness(loop.final)}
+        trees = loop_result_trees(loop, identify_options, maps)
         records = {
             ("identifications", "main"): IdentificationRecord.from_identification(
-                "main", loop.base, identify_options,
-                squareness_map=_squareness_of(trees[("identifications", "main")])),
+                "main", loop.base, identify_options, squareness_map=maps["main"]),
             ("identifications", "loop"): IdentificationRecord.from_identification(
                 "loop", loop.final, loop.identify_options(identify_options),
-                loop_identifiability(loop),
-                squareness_map=_squareness_of(trees[("identifications", "loop")])),
+                loop_identifiability(loop), maps["loop"]),
             ("loops", "main"): LoopRecord.from_loop("main", loop),
         }
         light = replace(loop, base=without_system(loop.base), final=without_system(loop.final))
@@ -181,11 +179,12 @@ def refit_with_effects(
     identifiability["redundant_lines"] = list(redundant_lines)
     identifiability["redundancy_from"] = "the 21-error fit before the loop"
     report(progress, 1.0, "refitted")
-    tree = identification_result_tree(result, options, identifiability)
-    record = IdentificationRecord.from_identification(
-        name, result, options, identifiability, _squareness_of(tree))
+    squareness = identification_squareness(result)  # once, for tree and record
     return Refit(without_system(result), cv, options, tuple(e.label for e in effects),
-                 tuple(rejected), record, tree)
+                 tuple(rejected),
+                 IdentificationRecord.from_identification(name, result, options, identifiability,
+                                                          squareness),
+                 identification_result_tree(result, options, identifiability, squareness))
 
 
 # --------------------------------------------------------------------------------------------

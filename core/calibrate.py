@@ -243,7 +243,13 @@ def save_project(
     # what the workbench's views draw (result_trees)
     from .result_trees import store_calibration
 
-    store_calibration(project, loop, identify_options, sensitivity_result)
+    store_calibration(
+        project,
+        loop,
+        identify_options,
+        sensitivity_result,
+        squareness={"loop": result["squareness_over_volume"]},
+    )
     project.put_result("compensation", "main", {"report_json": json.dumps(result["compensation"])})
     project.save(path)
 

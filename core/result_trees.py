@@ -273,10 +273,12 @@ def identification_result_tree(
     identification: Identification,
     options: IdentifyOptions | None = None,
     identifiability: Mapping[str, Any] | None = None,
+    squareness_map: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The project tree of an identification (module notes); ``identifiability`` replaces the
     identification's own report (the loop's final fit carries the plan's, see
-    :func:`loop_identifiability`)."""
+    :func:`loop_identifiability`); ``squareness_map``, its squareness map when the caller has
+    it (:func:`~volucal.core.squareness_map.identification_squareness`)."""
     from .calibrate import identification_tree
 
     tree = identification_tree(identification)
@@ -286,7 +288,9 @@ def identification_result_tree(
     tree["readings"] = ReadingTable.from_identification(identification).to_tree()
     tree["effects_json"] = json_text(effect_entries(identification))
     tree["options_json"] = json_text(options_json(options))
-    tree["squareness_map_json"] = json_text(identification_squareness(identification))
+    if squareness_map is None:
+        squareness_map = identification_squareness(identification)
+    tree["squareness_map_json"] = json_text(squareness_map)
     rms_um, rms_urad = residual_rms(identification)
     tree["residual_rms_um"] = rms_um
     tree["residual_rms_urad"] = rms_urad
@@ -367,17 +371,24 @@ def loop_tree(loop: LoopResult, base: str = "main", final: str = "loop") -> dict
 
 
 def loop_result_trees(
-    loop: LoopResult, options: IdentifyOptions | None = None
+    loop: LoopResult,
+    options: IdentifyOptions | None = None,
+    squareness: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> dict[tuple[str, str], dict[str, Any]]:
     """Every tree a closed loop stores: the identifications before ("main") and after ("loop")
     with their residuals, and the loop ("main") with every effect it tried. ``options`` are the
-    identification's; the loop's own states the basis spacing the loop chose."""
+    identification's; the loop's own states the basis spacing the loop chose. ``squareness``
+    holds the squareness maps the caller has, by identification name."""
+    maps = squareness or {}
     return {
-        ("identifications", "main"): identification_result_tree(loop.base, options),
+        ("identifications", "main"): identification_result_tree(
+            loop.base, options, squareness_map=maps.get("main")
+        ),
         ("identifications", "loop"): identification_result_tree(
             loop.final,
             loop.identify_options(options or IdentifyOptions()),
             loop_identifiability(loop),
+            maps.get("loop"),
         ),
         ("loops", "main"): loop_tree(loop),
     }
@@ -394,9 +405,11 @@ def store_calibration(
     loop: LoopResult,
     options: IdentifyOptions | None = None,
     sensitivity: Any = None,
+    squareness: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> None:
-    """Put the loop's trees (and the sensitivity arrays, when given) into ``project``."""
-    for (kind, name), tree in loop_result_trees(loop, options).items():
+    """Put the loop's trees (and the sensitivity arrays, when given) into ``project``;
+    ``squareness`` as :func:`loop_result_trees` takes it."""
+    for (kind, name), tree in loop_result_trees(loop, options, squareness).items():
         project.put_result(kind, name, tree)
     if sensitivity is not None:
         project.put_result("sensitivity", "main", sensitivity_result_tree(sensitivity))
