@@ -33,6 +33,7 @@ from PySide6.QtWidgets import (
 )
 from volucal.core.errors import AXIS_ERROR_IDS, COMPONENTS, ERROR_INFO, SQUARENESS_IDS, error_label
 from volucal.core.machine import AXES
+from volucal.core.squareness_map import place_text
 
 from . import evidence, jobs, plots
 from .document import ProjectDocument
@@ -366,8 +367,8 @@ class IdentificationView(View):
         if not entry:
             return ("—",) * 4
         return (self._pm(entry, "at_centre"),
-                f"{self._pm(entry, 'lowest')} at {_at(entry['lowest_at_mm'])}",
-                f"{self._pm(entry, 'highest')} at {_at(entry['highest_at_mm'])}",
+                f"{self._pm(entry, 'lowest')} at {place_text(entry['lowest_at_mm'])}",
+                f"{self._pm(entry, 'highest')} at {place_text(entry['highest_at_mm'])}",
                 ", ".join(entry["tilted_by"]) or "—")
 
     def _pm(self, entry: dict, key: str) -> str:
@@ -381,7 +382,7 @@ class IdentificationView(View):
                     "functions of its axes only together, or the project predates the map")
         least = entry["least_certain_at_mm"]
         return (f"the angle between the tool's paths over {_volume(entry['volume_mm'])}, at "
-                f"5 × 5 × 5 places; U (k = 2) is largest at {_at(least)}: "
+                f"5 × 5 × 5 places; U (k = 2) is largest at {place_text(least)}: "
                 f"{self._pm(entry, 'least_certain')}")
 
     def _fill_report(self, record: IdentificationRecord) -> None:
@@ -487,9 +488,6 @@ def _short(value: object) -> str:
         return "[" + ", ".join(_short(v) for v in value) + "]"
     return str(value)
 
-
-def _at(place: list[float]) -> str:
-    return "(" + ", ".join(f"{v:g}" for v in place) + ") mm"
 
 
 def _volume(volume: dict[str, list[float]]) -> str:

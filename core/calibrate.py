@@ -32,7 +32,7 @@ from .residuals import (
     LoopResult,
     close_loop,
 )
-from .squareness_map import GRID_PER_AXIS, squareness_report
+from .squareness_map import GRID_PER_AXIS, place_text, squareness_report
 from .thermal import UNIT_SYMBOL
 from .userror import UserError
 
@@ -433,16 +433,16 @@ def _squareness_lines(result: Mapping[str, Any]) -> list[str]:
     n = GRID_PER_AXIS
     out = [
         "squareness (µrad): the model's parameter; the angle between the tool's paths (tool "
-        f"offset {_at(result['machine']['tool_offset_mm'])}) through the centre of the measured "
-        f"volume, and its lowest … highest over {n}×{n}×{n} places in it, each ± its standard "
-        "uncertainty"
+        f"offset {place_text(result['machine']['tool_offset_mm'])}) through the centre of the "
+        f"measured volume, and its lowest … highest over {n}×{n}×{n} places in it, each ± its "
+        "standard uncertainty"
     ]
     for sid, e in entries.items():
         tilted = f"; tilted by {', '.join(e['tilted_by'])}" if e["tilted_by"] else ""
         out.append(
             f"  {sid} {e['parameter_urad']:.2f}; {_pm(e, 'at_centre')}; "
-            f"{_pm(e, 'lowest')} at {_at(e['lowest_at_mm'])} … "
-            f"{_pm(e, 'highest')} at {_at(e['highest_at_mm'])}{tilted}"
+            f"{_pm(e, 'lowest')} at {place_text(e['lowest_at_mm'])} … "
+            f"{_pm(e, 'highest')} at {place_text(e['highest_at_mm'])}{tilted}"
         )
     return out
 
@@ -450,9 +450,6 @@ def _squareness_lines(result: Mapping[str, Any]) -> list[str]:
 def _pm(entry: Mapping[str, Any], key: str) -> str:
     return f"{entry[f'{key}_urad']:.2f} ± {entry[f'{key}_std_urad']:.2f}"
 
-
-def _at(place: Sequence[float]) -> str:
-    return "(" + ", ".join(f"{v:g}" for v in place) + ") mm"
 
 
 def _short(parameters: Mapping[str, Any]) -> str:

@@ -70,6 +70,7 @@ from .report_blocks import (
     Signatures,
     Table,
 )
+from .squareness_map import place_text
 from .tolerances import Tolerances
 from .userror import UserError
 
@@ -775,15 +776,15 @@ def _paths_squareness(mapped: dict[str, Any], units: DisplayUnits) -> tuple[Any,
         (
             error_label(sid),
             pm(entry, "at_centre"),
-            f"{pm(entry, 'lowest')} at {_at(entry['lowest_at_mm'])}",
-            f"{pm(entry, 'highest')} at {_at(entry['highest_at_mm'])}",
+            f"{pm(entry, 'lowest')} at {place_text(entry['lowest_at_mm'])}",
+            f"{pm(entry, 'highest')} at {place_text(entry['highest_at_mm'])}",
             ", ".join(entry["tilted_by"]) or "—",
         )
         for sid, entry in mapped.items()
     )
     first = next(iter(mapped.values()))
     volume = ", ".join(f"{axis} {a:g} to {b:g}" for axis, (a, b) in first["volume_mm"].items())
-    centre = _at(first["centre_mm"])
+    centre = place_text(first["centre_mm"])
     return (
         Paragraph(
             "What a square or a laser's squareness optics would read on the identified machine: "
@@ -808,9 +809,6 @@ def _paths_squareness(mapped: dict[str, Any], units: DisplayUnits) -> tuple[Any,
         ),
     )
 
-
-def _at(place: list[float]) -> str:
-    return "(" + ", ".join(f"{v:g}" for v in place) + ") mm"
 
 
 def _loop(results: _Results) -> Section:

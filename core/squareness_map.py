@@ -15,7 +15,7 @@ its standard uncertainty at every place from the fit's covariance of every unkno
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
 
@@ -158,6 +158,11 @@ def identification_squareness(identification: Identification) -> dict[str, dict[
     """:func:`squareness_report` of ``identification`` over the volume its lines measured, as a
     project keeps it with the identification."""
     return squareness_report(LoopSource(identification, measured_range(identification)))
+
+
+def place_text(place_mm: Sequence[float]) -> str:
+    """A place as the console, the workbench and the certificate print it: "(x, y, z) mm"."""
+    return "(" + ", ".join(f"{v:g}" for v in place_mm) + ") mm"
 
 
 def _grid(ranges: dict[str, tuple[float, float]]) -> FloatArray:
