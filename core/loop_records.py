@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .effects import Effect, Plausibility
+from .errors import ERROR_INFO
 from .identify import Identification, IdentifyOptions
 from .machine import AXES
 from .readings import Readings
@@ -211,6 +212,39 @@ class SpacingChoice:
 
 
 @dataclass(frozen=True)
+class Move:
+    """How far one error moves when a line is left out, against its stated standard uncertainty
+    before that move widened it (µm for a displacement function, RMS over its stroke; µrad for an
+    angular function or a squareness)."""
+
+    error_id: str
+    move: float
+    stated_std: float
+
+    @property
+    def ratio(self) -> float:
+        return self.move / self.stated_std if self.stated_std > 0 else float("inf")
+
+    @property
+    def unit(self) -> str:
+        return "µm" if ERROR_INFO[self.error_id].unit == "um" else "µrad"
+
+    def text(self) -> str:
+        return (
+            f"{self.error_id} by {self.move:.3g} {self.unit} ({self.ratio:.3g} times its standard "
+            "uncertainty before this doubt)"
+        )
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "error": self.error_id,
+            "move": self.move,
+            "unit": self.unit,
+            "std_before": self.stated_std,
+        }
+
+
+@dataclass(frozen=True)
 class Unexplained:
     """Structure no effect explains: where, how large, and what it follows.
 
@@ -228,6 +262,10 @@ class Unexplained:
     #: machine effects the loop refused only because this line alone shows them, each by the
     #: last step that tried it (:func:`~volucal.core.loop_unexplained.with_one_line_effects`)
     one_line_effects: tuple[Step, ...] = ()
+    #: the errors that move beyond their stated uncertainty when this line is left out, and
+    #: those it alone determines (:func:`~volucal.core.loop_reach.reach_of_lines`)
+    moves: tuple[Move, ...] = ()
+    rests_on: tuple[str, ...] = ()
 
     @property
     def strongest(self) -> str | None:

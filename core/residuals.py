@@ -33,7 +33,9 @@
    ``margin`` of the cross-validated error is dropped (it was superseded by a later one).
 6. Report before/after, the effects kept and refused with the reason, and what is still
    unexplained — located, sized and decomposed into what it follows (position, approach
-   direction, time), never force-fitted.
+   direction, time), never force-fitted; with the errors each unexplained line moves beyond
+   their stated uncertainty when it is left out (their uncertainty widened by the move), and
+   those it alone determines.
 
 Stopping rule: the loop stops when no candidate reaches the family-wise false-alarm level
 ``alpha`` (Bonferroni over every trial of a step), or when every proposal of a step is refused.
@@ -50,6 +52,7 @@ The loop's parts, each in its own module (this one runs them and keeps the publi
 - ``loop_compare``: refits and how two fits predict the held-out readings;
 - ``loop_courses``: the scales of lines that follow a course in time;
 - ``loop_unexplained``: what nothing explains, located and decomposed;
+- ``loop_reach``: what the lines nothing explains moved in the 21 errors;
 - ``loop_judge``: the rules a refitted candidate must pass to be kept;
 - ``loop_state``, ``loop_choice``, ``loop_forward``: the forward steps and how a step chooses
   among the candidates that pass, with their rivals and doubts;
@@ -90,6 +93,7 @@ from .loop_end import (
 )
 from .loop_forward import AUDIT_ROUNDS, forward, prune
 from .loop_judge import BOTH_WAYS, PLACED_AGAIN, TOGETHER
+from .loop_reach import reach_of_lines, with_reach
 from .loop_records import (
     ESTIMATED_AGAIN,
     EffectKey,
@@ -244,6 +248,8 @@ class LoopResult:
                         if u.one_line_effects
                         else {}
                     ),
+                    **({"moves": [m.to_json() for m in u.moves]} if u.moves else {}),
+                    **({"rests_on": list(u.rests_on)} if u.rests_on else {}),
                 }
                 for u in self.unexplained
             ],
@@ -401,6 +407,22 @@ def _close_loop(
     current = with_shape_doubt(current, [*doubts, spacing.doubt])
     current = with_shape_doubt(current, [spacing.shape_missed], share=1.0)
     current = with_surface_doubt(current, state.surface_doubt)
+    report(progress, 0.97, "leaving each unexplained line out")
+    final_options = replace(options.identify, redundancy=False, spacing_mm=spacing.spacing_mm)
+
+    def refit(weighted: Readings) -> Identification:
+        return identify(
+            measurement,
+            final_options,
+            effects=list(current.effects),  # type: ignore[arg-type]
+            readings=weighted,
+            cancel=cancel,
+            initial=current.model,
+        )
+
+    reach = reach_of_lines(current, [u.line for u in leftover if u.line], refit)
+    leftover = with_reach(leftover, reach)
+    current = with_shape_doubt(current, [r.delta for r in reach.values() if r.moves], share=1.0)
     report(progress, 1.0, "loop closed")
     rivals = tuple(state.rivals.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
     ranges = tuple(time_ranges.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
