@@ -302,6 +302,12 @@ class Outcome:
     #: uncertainty there, its largest error over the map's places, and at every place the error
     #: divided by the standard uncertainty stated there
     path_squareness: dict[str, tuple[float, float, float, np.ndarray]] = field(default_factory=dict)
+    #: per identified function and squareness: its error divided by its stated standard
+    #: uncertainty (as ``band_ratio``, which is the largest of them)
+    error_ratios: dict[str, float] = field(default_factory=dict)
+    #: the errors report["unexplained"] names: moved beyond their stated uncertainty when an
+    #: unexplained line is left out, or resting on such a line alone
+    named: list[str] = field(default_factory=list)
 
     @property
     def visible_expected(self) -> set[tuple[str, str]]:
@@ -462,7 +468,7 @@ def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
         seconds = time.perf_counter() - start
     report = result.to_report()
     kept, implausible = kept_effects(report)
-    function_error, squareness_error, band_ratio = _accuracy(scenario, result)
+    function_error, squareness_error, ratios = _accuracy(scenario, result)
     noise = scenario.laser.noise
     peaks = unabsorbed_by_line(scenario)
     visibility = {label: max(lines.values(), default=0.0) / noise for label, lines in peaks.items()}
@@ -489,13 +495,15 @@ def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
         len(report["warnings"]),
         report["effects"],
         visibility,
-        band_ratio,
+        max(ratios.values(), default=0.0),
         showing,
         material_logged,
         [u["where"] for u in report["unexplained"]],
         max(outside.values(), default=0.0) / noise,
         report.get("basis", {}).get("spacing_mm"),
         expected_errors(result),
+        error_ratios=ratios,
+        named=named_errors(report),
     )
 
 
@@ -754,15 +762,19 @@ def _angle_spread(result, sid: str) -> float:  # type: ignore[no-untyped-def]
     return float(np.sqrt(max(w @ covariance @ w, 0.0)))
 
 
-def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, float], float]:  # type: ignore[no-untyped-def]
+#: per error id (function or squareness): a number
+PerError = dict[str, float]
+
+
+def _accuracy(scenario: Scenario, result) -> tuple[PerError, PerError, PerError]:  # type: ignore[no-untyped-def]
     """Per identified error function: RMS difference from the truth with the gauges removed
     (µm or µrad; cycles and local defects folded into the function they change, in both); per
-    squareness: the difference (µrad); and the largest RMS ratio of a function's (or a
-    squareness's) difference to its stated standard uncertainty (how honest the bands are)."""
+    squareness: the difference (µrad); and per function and squareness the RMS ratio of its
+    difference to its stated standard uncertainty (how honest the bands are)."""
     identified = set(result.base.identifiability.identified_ids)
     functions = {}
     slopes: dict[str, tuple[float, float]] = {}
-    worst_ratio = 0.0
+    ratios: dict[str, float] = {}
     for eid in scenario.machine.functions:
         if eid not in identified:
             continue
@@ -776,11 +788,11 @@ def _accuracy(scenario: Scenario, result) -> tuple[dict[str, float], dict[str, f
         difference = gauged(model, q, straightness) - gauged(truth_total, q, straightness)
         functions[eid] = float(np.sqrt(np.mean(difference**2)))
         if spread > 0:
-            worst_ratio = max(worst_ratio, functions[eid] / spread)
+            ratios[eid] = functions[eid] / spread
     squareness = squareness_errors(
         scenario.machine.squareness, result.final.model.squareness_urad, slopes, identified
     )
-    return functions, squareness, max(worst_ratio, squareness_ratio(result, squareness))
+    return functions, squareness, {**ratios, **squareness_ratios(result, squareness)}
 
 
 def ls_slope(values: np.ndarray, q: np.ndarray) -> float:
@@ -826,16 +838,27 @@ def squareness_errors(
     return out
 
 
-def squareness_ratio(result, errors: dict[str, float]) -> float:  # type: ignore[no-untyped-def]
-    """The largest ratio of a squareness error (µrad) to the stated standard uncertainty of the
+def squareness_ratios(result, errors: dict[str, float]) -> dict[str, float]:  # type: ignore[no-untyped-def]
+    """Per squareness, the ratio of its error (µrad) to the stated standard uncertainty of the
     angle it is (:func:`_angle_spread`; the statistical part, from the final fit's
     covariance)."""
-    worst = 0.0
+    out = {}
     for sid, error in errors.items():
         std = _angle_spread(result, sid)
         if std > 0:
-            worst = max(worst, error / std)
-    return worst
+            out[sid] = error / std
+    return out
+
+
+def named_errors(report: dict) -> list[str]:
+    """The errors report["unexplained"] names: those an unexplained line moves beyond their
+    stated uncertainty when left out, and those resting on such a line alone."""
+    named = {
+        eid
+        for item in report["unexplained"]
+        for eid in [m["error"] for m in item.get("moves", [])] + item.get("rests_on", [])
+    }
+    return sorted(named)
 
 
 def summarise(outcomes: list[Outcome]) -> dict[str, object]:

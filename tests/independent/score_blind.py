@@ -22,12 +22,14 @@ from loop_scenarios import (
     MATERIAL_CHANGE_C,
     VISIBLE_FACTOR,
     Outcome,
+    PerError,
     expected_errors,
     gauged,
     kept_effects,
     ls_slope,
+    named_errors,
     squareness_errors,
-    squareness_ratio,
+    squareness_ratios,
 )
 from numpy.polynomial import legendre
 
@@ -143,7 +145,7 @@ def rigid_share(
     return projector, functions, squareness, remaining
 
 
-def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[str, float], float]:  # type: ignore[no-untyped-def]
+def _accuracy(seed: int, truth: dict, result) -> tuple[PerError, PerError, PerError]:  # type: ignore[no-untyped-def]
     """As :func:`loop_scenarios._accuracy`, against the manifest: every identified function with
     its gauge removed, cycles and local defects folded into the function they change and
     surfaces folded in along the line through the middle of the other strokes
@@ -166,7 +168,7 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
     identified = set(result.base.identifiability.identified_ids)
     functions = {}
     slopes: dict[str, tuple[float, float]] = {}
-    worst_ratio = 0.0
+    ratios: dict[str, float] = {}
     for eid, table in truth["machine"]["functions"].items():
         if eid not in identified:
             continue
@@ -187,7 +189,7 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
         difference = gauged(model, q, straightness) - gauged(value, q, straightness)
         functions[eid] = float(np.sqrt(np.mean(difference**2)))
         if spread > 0:
-            worst_ratio = max(worst_ratio, functions[eid] / spread)
+            ratios[eid] = functions[eid] / spread
     truth_squareness = {
         sid: value + rigid_squareness.get(sid, 0.0)
         for sid, value in truth["machine"]["squareness_urad"].items()
@@ -198,7 +200,7 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[dict[str, float], dict[st
         slopes,
         identified,
     )
-    return functions, squareness, max(worst_ratio, squareness_ratio(result, squareness))
+    return functions, squareness, {**ratios, **squareness_ratios(result, squareness)}
 
 
 def run_blind(seed: int, noise_draw: int = 0, paths: bool = False) -> Outcome:
@@ -230,7 +232,7 @@ def run_blind(seed: int, noise_draw: int = 0, paths: bool = False) -> Outcome:
         )
         for e in catalogue
     }
-    function_error, squareness_error, band_ratio = _accuracy(seed, truth, result)
+    function_error, squareness_error, ratios = _accuracy(seed, truth, result)
     return Outcome(
         seed,
         Path(truth["plan"]["source"]).stem,
@@ -247,7 +249,7 @@ def run_blind(seed: int, noise_draw: int = 0, paths: bool = False) -> Outcome:
         len(report["warnings"]),
         report["effects"],
         visibility,
-        band_ratio,
+        max(ratios.values(), default=0.0),
         showing,
         _material_logged(truth),
         [u["where"] for u in report["unexplained"]],
@@ -262,6 +264,8 @@ def run_blind(seed: int, noise_draw: int = 0, paths: bool = False) -> Outcome:
         report.get("basis", {}).get("spacing_mm"),
         expected_errors(result),
         path_squareness(seed, truth, result) if paths else {},
+        error_ratios=ratios,
+        named=named_errors(report),
     )
 
 
