@@ -113,11 +113,13 @@ def reach_of_lines(
             if move > REACH_SIGMAS * allowed:
                 moves.append(Move(eid, move, stated[eid]))
         moves.sort(key=lambda m: m.ratio, reverse=True)
-        delta = (
-            without.model.parameters - whole.model.parameters
-            if moves
-            else np.zeros_like(whole.model.parameters)
-        )
+        delta = np.zeros_like(whole.model.parameters)
+        if moves:
+            # an error the line alone determines is set anew (or left at zero) without it: its
+            # move is no pull of the line's against the others'
+            for eid in set(ids) - set(rests):
+                at = whole.model.parameter_slices[eid]
+                delta[at] = without.model.parameters[at] - whole.model.parameters[at]
         out[name] = Reach(name, tuple(moves), tuple(rests), delta)
     return out
 
