@@ -86,10 +86,10 @@ def reach_of_lines(
     are measured between two refits (with the line and without it), so that they hold nothing of
     the loop's own route; the stated uncertainty is ``final``'s, with every doubt the loop
     added."""
-    readings = final.readings
-    names = [line.name for line in readings.lines]
     if not lines:
         return {}
+    readings = final.readings
+    names = [line.name for line in readings.lines]
     whole = refit(readings)
     ids = [eid for eid in final.identifiability.identified_ids if whole.is_identified(eid)]
     stated = {eid: _rms_std(final, eid) for eid in ids}

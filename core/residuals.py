@@ -258,6 +258,33 @@ class LoopResult:
         }
 
 
+def _with_reach(
+    measurement: Measurement,
+    options: LoopOptions,
+    spacing: SpacingChoice,
+    final: Identification,
+    leftover: list[Unexplained],
+    cancel: CancelToken | None,
+) -> tuple[Identification, list[Unexplained]]:
+    """The final fit with the errors' covariance widened by what each unexplained line pulls,
+    and the unexplained entries saying it (:func:`~volucal.core.loop_reach.reach_of_lines`)."""
+    fit_options = replace(options.identify, redundancy=False, spacing_mm=spacing.spacing_mm)
+
+    def refit(weighted: Readings) -> Identification:
+        return identify(
+            measurement,
+            fit_options,
+            effects=list(final.effects),  # type: ignore[arg-type]
+            readings=weighted,
+            cancel=cancel,
+            initial=final.model,
+        )
+
+    reach = reach_of_lines(final, [u.line for u in leftover if u.line], refit)
+    pulls = [r.delta for r in reach.values() if r.moves]
+    return with_shape_doubt(final, pulls, share=1.0), with_reach(leftover, reach)
+
+
 def _cv_warnings(readings: Readings, cv: CrossValidation, redundant: Sequence[str]) -> list[str]:
     """What the plan allows the loop to cross-validate, said once."""
     out = []
@@ -408,21 +435,7 @@ def _close_loop(
     current = with_shape_doubt(current, [spacing.shape_missed], share=1.0)
     current = with_surface_doubt(current, state.surface_doubt)
     report(progress, 0.97, "leaving each unexplained line out")
-    final_options = replace(options.identify, redundancy=False, spacing_mm=spacing.spacing_mm)
-
-    def refit(weighted: Readings) -> Identification:
-        return identify(
-            measurement,
-            final_options,
-            effects=list(current.effects),  # type: ignore[arg-type]
-            readings=weighted,
-            cancel=cancel,
-            initial=current.model,
-        )
-
-    reach = reach_of_lines(current, [u.line for u in leftover if u.line], refit)
-    leftover = with_reach(leftover, reach)
-    current = with_shape_doubt(current, [r.delta for r in reach.values() if r.moves], share=1.0)
+    current, leftover = _with_reach(measurement, options, spacing, current, leftover, cancel)
     report(progress, 1.0, "loop closed")
     rivals = tuple(state.rivals.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
     ranges = tuple(time_ranges.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
