@@ -279,9 +279,6 @@ class Outcome:
     #: per injected catalogue effect ("kind where"): what it leaves in the 21-error residual,
     #: in units of the noise
     visibility: dict[str, float] = field(default_factory=dict)
-    #: largest RMS ratio of a function's (or a squareness's) error to its stated standard
-    #: uncertainty
-    band_ratio: float = 0.0
     #: per injected catalogue effect ("kind where"): the lines on which what the 21-error fit
     #: leaves of it reaches 4× the noise
     showing: dict[str, list[str]] = field(default_factory=dict)
@@ -302,12 +299,18 @@ class Outcome:
     #: uncertainty there, its largest error over the map's places, and at every place the error
     #: divided by the standard uncertainty stated there
     path_squareness: dict[str, tuple[float, float, float, np.ndarray]] = field(default_factory=dict)
-    #: per identified function and squareness: its error divided by its stated standard
-    #: uncertainty (as ``band_ratio``, which is the largest of them)
+    #: per identified function and squareness: its RMS error divided by its stated standard
+    #: uncertainty
     error_ratios: dict[str, float] = field(default_factory=dict)
     #: the errors report["unexplained"] names: moved beyond their stated uncertainty when an
     #: unexplained line is left out, or resting on such a line alone
     named: list[str] = field(default_factory=list)
+
+    @property
+    def band_ratio(self) -> float:
+        """The largest ratio of a function's (or a squareness's) error to its stated standard
+        uncertainty."""
+        return max(self.error_ratios.values(), default=0.0)
 
     @property
     def visible_expected(self) -> set[tuple[str, str]]:
@@ -495,7 +498,6 @@ def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
         len(report["warnings"]),
         report["effects"],
         visibility,
-        max(ratios.values(), default=0.0),
         showing,
         material_logged,
         [u["where"] for u in report["unexplained"]],

@@ -249,7 +249,6 @@ def run_blind(seed: int, noise_draw: int = 0, paths: bool = False) -> Outcome:
         len(report["warnings"]),
         report["effects"],
         visibility,
-        max(ratios.values(), default=0.0),
         showing,
         _material_logged(truth),
         [u["where"] for u in report["unexplained"]],
