@@ -574,7 +574,7 @@ def _shape_missed(
         square = float(np.mean(difference**2)) - expected
         if square <= 2.0 * spread:
             continue
-        coefficients = _fit_in_gauge(model, eid, q, difference)
+        coefficients = fit_in_gauge(model, eid, q, difference)
         shown = float(np.sqrt(np.mean((model.functions[eid].basis.design(q) @ coefficients) ** 2)))
         if shown <= 0.0:
             continue
@@ -599,13 +599,13 @@ def in_basis(moves: FloatArray, old: ErrorModel, new: ErrorModel) -> FloatArray:
         low, high = old.machine.stroke(str(ERROR_INFO[eid].axis))
         q = np.linspace(low, high, STROKE_POINTS)
         change = old.functions[eid].basis.design(q) @ moves[:, was[eid]].T
-        out[:, now[eid]] = _fit_in_gauge(new, eid, q, change).T
+        out[:, now[eid]] = fit_in_gauge(new, eid, q, change).T
     for eid in SQUARENESS_IDS:
         out[:, now[eid]] = moves[:, was[eid]]
     return out
 
 
-def _fit_in_gauge(model: ErrorModel, eid: str, q: FloatArray, values: FloatArray) -> FloatArray:
+def fit_in_gauge(model: ErrorModel, eid: str, q: FloatArray, values: FloatArray) -> FloatArray:
     """The coefficients of ``model``'s function ``eid`` nearest ``values`` at q (least squares;
     one column per column of ``values``) among those its gauge admits: zero at the reference
     position and, for a straightness, no least-squares slope over the stroke."""

@@ -244,6 +244,58 @@ class Move:
         }
 
 
+@dataclass(frozen=True, eq=False)
+class ScaleDoubt:
+    """What an unexplained line's runs read of its axis' scale apart from the model, and the
+    doubt that puts on the axis' positioning error."""
+
+    axis: str
+    error_id: str
+    line: str
+    #: the lowest and highest scale a run of the line reads relative to the model (ppm)
+    scale_ppm: tuple[float, float]
+    #: the run reading the one farthest from the model: its number (from 1) and mid-time (min)
+    run: int
+    minutes: float
+    #: the false-alarm level of the line's scale (its mean, or its course in time)
+    log10_false_alarm: float
+    #: the standard uncertainty added (µm, RMS over the stroke) and the stated one before it
+    move: float
+    stated_std: float
+    #: the move of the model's parameters whose outer product widens the covariance
+    delta: FloatArray = field(repr=False)
+
+    @property
+    def half_width_ppm(self) -> float:
+        return max(abs(self.scale_ppm[0]), abs(self.scale_ppm[1]))
+
+    def sentence(self) -> str:
+        low, high = self.scale_ppm
+        return (
+            f"its runs read the {self.axis} scale {low:+.3g} to {high:+.3g} ppm from the model's "
+            f"(run {self.run} at {self.minutes:.0f} min into the session the farthest; log10 false "
+            f"alarm {self.log10_false_alarm:.3g}); the 21 errors describe the machine at the "
+            "session's first reading, and no kept effect says which of these scales it had: "
+            f"{self.error_id}'s stated uncertainty includes a scale of ±{self.half_width_ppm:.3g} "
+            f"ppm, rectangular ({self.move:.3g} µm RMS over its stroke, "
+            f"{self.move / max(self.stated_std, 1e-300):.3g} times its standard uncertainty "
+            "before this doubt)"
+        )
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "error": self.error_id,
+            "axis": self.axis,
+            "scale_ppm": [float(v) for v in self.scale_ppm],
+            "half_width_ppm": float(self.half_width_ppm),
+            "run": self.run,
+            "minutes": float(self.minutes),
+            "move": float(self.move),
+            "unit": "µm",
+            "std_before": float(self.stated_std),
+        }
+
+
 @dataclass(frozen=True)
 class Unexplained:
     """Structure no effect explains: where, how large, and what it follows.
@@ -259,6 +311,8 @@ class Unexplained:
     correlates_with: dict[str, float] = field(default_factory=dict)
     #: the line whose systematic residual along its targets it is ("" for anything else)
     line: str = ""
+    #: the axis whose linear lines read different scales over the session ("" for anything else)
+    axis: str = ""
     #: machine effects the loop refused only because this line alone shows them, each by the
     #: last step that tried it (:func:`~volucal.core.loop_unexplained.with_one_line_effects`)
     one_line_effects: tuple[Step, ...] = ()
@@ -266,6 +320,9 @@ class Unexplained:
     #: those it alone determines (:func:`~volucal.core.loop_reach.reach_of_lines`)
     moves: tuple[Move, ...] = ()
     rests_on: tuple[str, ...] = ()
+    #: the scale of its axis this line's runs read apart from the model, and the doubt it puts
+    #: on the axis' positioning error (:func:`~volucal.core.loop_scale.scale_doubts`)
+    scale: ScaleDoubt | None = None
 
     @property
     def strongest(self) -> str | None:

@@ -223,7 +223,7 @@ def _scales_apart(identification: Identification, alpha: float) -> list[Unexplai
         lines = [index for index, moved in moving_one_axis(readings) if moved == axis]
         if len(lines) < 3:
             continue
-        scales = [_line_scale(identification, index) for index in lines]
+        scales = [line_scale(identification, index) for index in lines]
         slope = np.array([scale.slope for scale in scales])
         variance = np.array([scale.variance for scale in scales])
         chi2, apart = _apart(slope, variance)
@@ -260,23 +260,28 @@ def _scales_apart(identification: Identification, alpha: float) -> list[Unexplai
                 ),
                 magnitude_um=float(np.sqrt(np.mean(along**2))),
                 correlates_with={"time": float(along @ along) / max(total, 1e-300)},
+                axis=axis,
             )
         )
     return out
 
 
-class _LineScale(NamedTuple):
-    """One linear line's scale relative to a fit (:func:`_line_scale`)."""
+class LineScale(NamedTuple):
+    """One linear line's scale relative to a fit (:func:`line_scale`)."""
 
     slope: float  # µm per mm: the least-squares slope of its residual over its targets
     variance: float  # of the slope, from the line's scatter about its targets' means per direction
+    dof: int  # the degrees of freedom of that scatter
     minutes: float  # its mid-time, from the session's first reading
     by_run: FloatArray  # per reading: its run's own slope times the distance from the line's middle
     energy: float  # the line's residual sum of squares
+    run_slopes: FloatArray  # per run: its own slope (µm per mm)
+    run_minutes: FloatArray  # per run: its mid-time, from the session's first reading
+    run_numbers: IntArray  # per run: its number, from 1
 
 
-def _line_scale(fit: Identification, index: int) -> _LineScale:
-    """Line ``index``'s scale relative to ``fit`` (:class:`_LineScale`)."""
+def line_scale(fit: Identification, index: int) -> LineScale:
+    """Line ``index``'s scale relative to ``fit`` (:class:`LineScale`)."""
     readings = fit.readings
     rows = np.flatnonzero(readings.line == index)
     q = readings.target_mm[rows] - readings.target_mm[rows].mean()
@@ -284,15 +289,21 @@ def _line_scale(fit: Identification, index: int) -> _LineScale:
     qq = max(float(q @ q), 1e-300)
     _, cell = np.unique(cell_key(readings, index), return_inverse=True)
     counts = np.bincount(cell)
-    scatter = float(np.sum(cell_centred(cell, counts, r) ** 2)) / max(rows.size - counts.size, 1)
-    _, run = np.unique(readings.run[rows], return_inverse=True)
+    dof = rows.size - counts.size
+    scatter = float(np.sum(cell_centred(cell, counts, r) ** 2)) / max(dof, 1)
+    numbers, run = np.unique(readings.run[rows], return_inverse=True)
     per_run = np.bincount(run, weights=q * r) / np.maximum(np.bincount(run, weights=q * q), 1e-300)
-    return _LineScale(
+    minutes = readings.time_s[rows] / 60.0  # time_s counts from the first reading
+    return LineScale(
         float(q @ r) / qq,
         max(scatter, 1e-300) / qq,
-        float(readings.time_s[rows].mean()) / 60.0,  # time_s counts from the first reading
+        dof,
+        float(minutes.mean()),
         per_run[run] * q,
         float(r @ r),
+        per_run,
+        np.bincount(run, weights=minutes) / np.bincount(run),
+        numbers + 1,
     )
 
 

@@ -106,6 +106,7 @@ from .loop_records import (
     group_rms,
     line_group,
 )
+from .loop_scale import with_scale_doubts
 from .loop_search import diagnose, periods_text
 from .loop_state import State
 from .loop_unexplained import unexplained, with_one_line_effects
@@ -250,6 +251,7 @@ class LoopResult:
                     ),
                     **({"moves": [m.to_json() for m in u.moves]} if u.moves else {}),
                     **({"rests_on": list(u.rests_on)} if u.rests_on else {}),
+                    **({"scale": u.scale.to_json()} if u.scale is not None else {}),
                 }
                 for u in self.unexplained
             ],
@@ -436,6 +438,7 @@ def _close_loop(
     current = with_surface_doubt(current, state.surface_doubt)
     report(progress, 0.97, "leaving each unexplained line out")
     current, leftover = _with_reach(measurement, options, spacing, current, leftover, cancel)
+    current, leftover = with_scale_doubts(current, leftover, options.alpha)
     report(progress, 1.0, "loop closed")
     rivals = tuple(state.rivals.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
     ranges = tuple(time_ranges.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]

@@ -854,11 +854,14 @@ def squareness_ratios(result, errors: dict[str, float]) -> dict[str, float]:  # 
 
 def named_errors(report: dict) -> list[str]:
     """The errors report["unexplained"] names: those an unexplained line moves beyond their
-    stated uncertainty when left out, and those resting on such a line alone."""
+    stated uncertainty when left out, those resting on such a line alone, and the positioning
+    error whose scale such a line reads apart."""
     named = {
         eid
         for item in report["unexplained"]
-        for eid in [m["error"] for m in item.get("moves", [])] + item.get("rests_on", [])
+        for eid in [m["error"] for m in item.get("moves", [])]
+        + item.get("rests_on", [])
+        + ([item["scale"]["error"]] if "scale" in item else [])
     }
     return sorted(named)
 
