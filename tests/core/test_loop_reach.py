@@ -7,14 +7,13 @@ error may be from the machine's; an error the plan determines through that line 
 Each scenario is written to files by the generator and the truth comes from its manifest.
 """
 
-import json
 import sys
 import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "independent"))
 
-from score_blind import run_blind  # noqa: E402
+from score_blind import calibrated_report, run_blind  # noqa: E402
 
 from tests.blind.scenarios import write_scenario  # noqa: E402
 
@@ -24,16 +23,7 @@ def test_errors_a_line_nothing_explains_pulls_are_named_and_stated_with_the_pull
     # end, a period of 100 min), outside every catalogue. Nothing is kept and 19 lines are
     # reported unexplained; the squareness EC0Y was 41 µrad off the truth with a stated standard
     # uncertainty of 1.2 µrad, 34 times smaller, and nothing said which errors the lines moved
-    with tempfile.TemporaryDirectory(prefix="volucal-reach-") as tmp:
-        plan, _ = write_scenario(54025, tmp)
-        from volucal.core.cli import main
-
-        report_path = Path(tmp) / "report.json"
-        code = main(
-            ["calibrate", str(plan), "--report", str(report_path), "--no-sensitivity", "--quiet"]
-        )
-        assert code == 0
-        report = json.loads(report_path.read_text(encoding="utf-8"))
+    report = calibrated_report(54025)
     assert report["effects"] == []
     moves = {
         (item["where"].split()[1], move["error"]): move

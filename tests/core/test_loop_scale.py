@@ -6,16 +6,12 @@ scales the lines read it had, the positioning error's stated uncertainty holds t
 The scenario is written to files by the generator and the truth comes from its manifest.
 """
 
-import json
 import sys
-import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "independent"))
 
-from score_blind import run_blind  # noqa: E402
-
-from tests.blind.scenarios import write_scenario  # noqa: E402
+from score_blind import calibrated_report, run_blind  # noqa: E402
 
 
 def test_a_scale_an_unexplained_line_reads_apart_widens_its_positioning_error() -> None:
@@ -23,16 +19,7 @@ def test_a_scale_an_unexplained_line_reads_apart_widens_its_positioning_error() 
     # reading; x_linear is measured then, the other X lines ten hours later. Held out, x_linear
     # cannot be predicted, so no drift is kept: EXX was stated at the warm scale, 5.8 µm RMS from
     # the machine at the first reading, with a standard uncertainty of 0.19 µm
-    with tempfile.TemporaryDirectory(prefix="volucal-scale-") as tmp:
-        plan, _ = write_scenario(54153, tmp)
-        from volucal.core.cli import main
-
-        report_path = Path(tmp) / "report.json"
-        code = main(
-            ["calibrate", str(plan), "--report", str(report_path), "--no-sensitivity", "--quiet"]
-        )
-        assert code == 0
-        report = json.loads(report_path.read_text(encoding="utf-8"))
+    report = calibrated_report(54153)
     assert not any(e["kind"] == "thermal_drift" for e in report["effects"])
     by_line = {u["where"].split()[1]: u for u in report["unexplained"]}
     scale = by_line["x_linear"]["scale"]

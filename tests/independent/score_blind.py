@@ -203,6 +203,23 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[PerError, PerError, PerEr
     return functions, squareness, {**ratios, **squareness_ratios(result, squareness)}
 
 
+def calibrated_report(seed: int) -> dict:
+    """report.json of ``volucal calibrate`` (no sensitivity) on the blind scenario ``seed``, as a
+    user runs it on the files the generator writes."""
+    import json
+
+    from volucal.core.cli import main
+
+    with tempfile.TemporaryDirectory(prefix="volucal-blind-") as tmp:
+        plan, _ = write_scenario(seed, tmp)
+        report_path = Path(tmp) / "report.json"
+        code = main(
+            ["calibrate", str(plan), "--report", str(report_path), "--no-sensitivity", "--quiet"]
+        )
+        assert code == 0
+        return json.loads(report_path.read_text(encoding="utf-8"))
+
+
 def run_blind(seed: int, noise_draw: int = 0, paths: bool = False) -> Outcome:
     """Write the blind scenario ``seed`` (with ``noise_draw``, its readings' noise drawn anew:
     :func:`scenarios.build_scenario`), import it with volucal, close the loop, score; with
