@@ -252,13 +252,15 @@ class ScaleDoubt:
     axis: str
     error_id: str
     line: str
-    #: the lowest and highest scale a run of the line reads relative to the model (ppm)
+    #: the lowest and highest scale a pass of the line reads relative to the model (ppm; a pass:
+    #: a run out and the run back, or a run alone)
     scale_ppm: tuple[float, float]
-    #: the run reading the one farthest from the model: its number (from 1) and mid-time (min)
-    run: int
+    #: the pass reading the one farthest from the model: its runs' numbers (from 1) and its
+    #: mid-time (min from the session's first reading)
+    runs: tuple[int, ...]
     minutes: float
-    #: the false-alarm level of the line's scale (its mean, or its course in time)
-    log10_false_alarm: float
+    #: the false-alarm level of the line's scale (of its mean, else of its course in time)
+    false_alarm: float
     #: the standard uncertainty added (µm, RMS over the stroke) and the stated one before it
     move: float
     stated_std: float
@@ -269,26 +271,14 @@ class ScaleDoubt:
     def half_width_ppm(self) -> float:
         return max(abs(self.scale_ppm[0]), abs(self.scale_ppm[1]))
 
-    def sentence(self) -> str:
-        low, high = self.scale_ppm
-        return (
-            f"its runs read the {self.axis} scale {low:+.3g} to {high:+.3g} ppm from the model's "
-            f"(run {self.run} at {self.minutes:.0f} min into the session the farthest; log10 false "
-            f"alarm {self.log10_false_alarm:.3g}); the 21 errors describe the machine at the "
-            "session's first reading, and no kept effect says which of these scales it had: "
-            f"{self.error_id}'s stated uncertainty includes a scale of ±{self.half_width_ppm:.3g} "
-            f"ppm, rectangular ({self.move:.3g} µm RMS over its stroke, "
-            f"{self.move / max(self.stated_std, 1e-300):.3g} times its standard uncertainty "
-            "before this doubt)"
-        )
-
     def to_json(self) -> dict[str, object]:
         return {
             "error": self.error_id,
             "axis": self.axis,
+            "line": self.line,
             "scale_ppm": [float(v) for v in self.scale_ppm],
             "half_width_ppm": float(self.half_width_ppm),
-            "run": self.run,
+            "runs": list(self.runs),
             "minutes": float(self.minutes),
             "move": float(self.move),
             "unit": "µm",

@@ -4,24 +4,26 @@ The 21 errors describe the machine at the session's first reading (DESIGN, "Time
 drift the loop keeps is referred to that moment. Where no drift is kept, an axis whose scale
 changed during the session is fitted at the scale its lines share, weighted by how much of each
 they hold, and nothing says which of the scales it went through it had at the first reading. A
-linear line moving the axis alone that the loop reports unexplained, and whose runs read the
+linear line moving the axis alone that the loop reports unexplained, and whose passes read the
 axis' scale apart from the model's, says how far it went: blind 54153 (the plan of the demo; the
 X scale warming by 25 ppm with τ 43 min from the session's first reading, x_linear measured
 then, the other three X lines ten hours later) kept no drift, since what held out x_linear
 could not predict it, and stated EXX 25 ppm (5.8 µm RMS) from the machine at the first reading
-with 0.19 µm of standard uncertainty; x_linear's runs read the scale 13.8 to 22.3 ppm below the
-model's.
+with 0.19 µm of standard uncertainty; x_linear's passes read the scale 13.8 to 22.3 ppm below
+the model's.
 
-The largest scale a run of such a line reads apart from the model, h, bounds the doubt without
+The largest scale a pass of such a line reads apart from the model, h, bounds the doubt without
 saying how it is distributed: its positioning error's covariance is widened by a scale of
 ±h ppm about the reference position as a rectangular distribution (u = h/√3, GUM 4.3.7), and the
-line's entry names it. A line whose residual has no scale beyond its noise adds nothing.
+line's entry names it. Nothing is added where the line's scale is within its noise (neither its
+mean nor its course in time beyond it) or where the doubt is within the error's stated
+uncertainty.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import special
@@ -30,8 +32,9 @@ from .effects import ThermalDrift
 from .identify import Identification
 from .loop_courses import moving_one_axis, scales_in_time
 from .loop_end import STROKE_POINTS, fit_in_gauge, with_shape_doubt
-from .loop_records import ScaleDoubt, Unexplained
-from .loop_unexplained import LineScale, line_scale
+from .loop_records import FloatArray, ScaleDoubt, Unexplained
+from .loop_tester import log10_text
+from .loop_unexplained import line_scale
 
 #: A rectangular distribution of half-width h has the standard deviation h / √3 (GUM 4.3.7).
 RECTANGULAR = 1.0 / np.sqrt(3.0)
@@ -57,25 +60,31 @@ def scale_doubts(
     if not tested:
         return {}
     in_time = scales_in_time(final, alpha)
-    found: dict[str, tuple[int, LineScale, float]] = {}
+    found: dict[str, tuple[int, _Passes, float]] = {}
     for index, axis in tested:
-        runs = line_scale(final, index)
-        if runs.dof <= 0:
+        scale = line_scale(final, index)
+        if scale.dof <= 0:
             continue
         # its mean scale against its noise, Bonferroni over the lines tested; or its course in time
-        p_mean = float(special.fdtrc(1, runs.dof, runs.slope**2 / runs.variance))
-        if p_mean * len(tested) >= alpha and index not in in_time:
+        p_mean = float(special.fdtrc(1, scale.dof, scale.slope**2 / scale.variance))
+        if p_mean * len(tested) < alpha:
+            p = p_mean
+        elif index in in_time:
+            p = in_time[index][1]
+        else:
             continue
-        p = min(p_mean, in_time[index][1] if index in in_time else 1.0)
-        if axis not in found or _farthest(runs) > _farthest(found[axis][1]):
-            found[axis] = (index, runs, p)
+        passes = _passes(final, index)
+        if passes is None:
+            continue
+        if axis not in found or passes.farthest > found[axis][1].farthest:
+            found[axis] = (index, passes, p)
     out = {}
     model = final.model
-    for axis, (index, runs, p) in found.items():
+    for axis, (index, passes, p) in found.items():
         eid = f"E{axis}{axis}"
         low, high = model.machine.stroke(axis)
         q = np.linspace(low, high, STROKE_POINTS)
-        values = RECTANGULAR * _farthest(runs) * 1e-3 * (q - model.machine.reference(axis))
+        values = RECTANGULAR * passes.farthest * 1e-3 * (q - model.machine.reference(axis))
         coefficients = fit_in_gauge(model, eid, q, values)
         delta = np.zeros(model.parameter_count)
         delta[model.parameter_slices[eid]] = coefficients
@@ -84,17 +93,16 @@ def scale_doubts(
         stated = float(np.sqrt(np.mean(std**2)))
         if move <= stated:
             continue
-        ppm = 1e3 * runs.run_slopes
-        far = int(np.argmax(np.abs(ppm)))
+        far = int(np.argmax(np.abs(passes.scale_ppm)))
         name = readings.lines[index].name
         out[name] = ScaleDoubt(
             axis,
             eid,
             name,
-            (float(ppm.min()), float(ppm.max())),
-            int(runs.run_numbers[far]),
-            float(runs.run_minutes[far]),
-            float(np.log10(max(p, 1e-300))),
+            (float(passes.scale_ppm.min()), float(passes.scale_ppm.max())),
+            passes.runs[far],
+            float(passes.minutes[far]),
+            p,
             move,
             stated,
             delta,
@@ -102,9 +110,74 @@ def scale_doubts(
     return out
 
 
-def _farthest(scale: LineScale) -> float:
-    """The largest scale a run of the line reads apart from the model (ppm)."""
-    return 1e3 * float(np.max(np.abs(scale.run_slopes)))
+#: A run counts towards a line's scale where its targets' spread about their mean (Σ q²) is at
+#: least this share of the fullest run's: a run cut short reads any offset as a slope.
+FULL_RUN_SHARE = 0.5
+
+
+@dataclass(frozen=True)
+class _Passes:
+    """A line's scale relative to a fit, pass by pass (:func:`_passes`)."""
+
+    scale_ppm: FloatArray  # per pass
+    runs: tuple[tuple[int, ...], ...]  # per pass: its runs' numbers (from 1)
+    minutes: FloatArray  # per pass: its mid-time, from the session's first reading
+
+    @property
+    def farthest(self) -> float:
+        """The largest scale a pass reads apart from the model (ppm)."""
+        return float(np.max(np.abs(self.scale_ppm)))
+
+
+def _passes(fit: Identification, index: int) -> _Passes | None:
+    """Line ``index``'s scale relative to ``fit``, per pass: each run's slope of its residual over
+    its targets (about their mean in that run), and where a run out is followed by one back, the
+    mean of the two. A drift of the laser's reading in time reads as a slope in a run that moves
+    one way, and as the opposite slope in the run back; a scale reads alike in both (a backlash
+    is an offset of each direction, no slope). Runs cut short (:data:`FULL_RUN_SHARE`) are left
+    out; None where no run is left."""
+    readings = fit.readings
+    rows = np.flatnonzero(readings.line == index)
+    numbers, run = np.unique(readings.run[rows], return_inverse=True)
+    count = np.bincount(run).astype(float)
+    q = readings.target_mm[rows]
+    q = q - (np.bincount(run, weights=q) / count)[run]
+    qq = np.bincount(run, weights=q * q)
+    full = qq >= FULL_RUN_SHARE * qq.max() if qq.max() > 0 else np.zeros(qq.size, dtype=bool)
+    if not full.any():
+        return None
+    slope = np.bincount(run, weights=q * fit.residual[rows]) / np.maximum(qq, 1e-300)
+    minutes = np.bincount(run, weights=readings.time_s[rows]) / count / 60.0
+    direction = readings.lines[index].data.run_direction[numbers]
+    order = [int(i) for i in np.argsort(minutes) if full[i]]
+    scales, runs, times = [], [], []
+    k = 0
+    while k < len(order):
+        i = order[k]
+        j = order[k + 1] if k + 1 < len(order) else None
+        pair = j is not None and direction[i] != direction[j]
+        group = (i, j) if pair and j is not None else (i,)
+        scales.append(1e3 * float(np.mean(slope[list(group)])))
+        runs.append(tuple(int(numbers[g]) + 1 for g in group))
+        times.append(float(np.mean(minutes[list(group)])))
+        k += len(group)
+    return _Passes(np.array(scales), tuple(runs), np.array(times))
+
+
+def _sentence(doubt: ScaleDoubt) -> str:
+    """What the doubt adds to the description of its entry."""
+    low, high = doubt.scale_ppm
+    runs = "run" if len(doubt.runs) == 1 else "runs"
+    return (
+        f"line {doubt.line}'s runs read the {doubt.axis} scale {low:+.3g} to {high:+.3g} ppm "
+        f"from the model's ({runs} {' and '.join(map(str, doubt.runs))}, {doubt.minutes:.0f} min "
+        f"into the session, the farthest; log10 false alarm {log10_text(doubt.false_alarm)}); "
+        "the 21 errors describe the machine at the session's first reading, and no kept effect "
+        f"says which of these scales it had: {doubt.error_id}'s stated uncertainty includes a "
+        f"scale of ±{doubt.half_width_ppm:.3g} ppm, rectangular ({doubt.move:.3g} µm RMS over "
+        f"its stroke, {doubt.move / max(doubt.stated_std, 1e-300):.3g} times its standard "
+        "uncertainty before this doubt)"
+    )
 
 
 def with_scale_doubts(
@@ -126,7 +199,7 @@ def with_scale_doubts(
             out.append(item)
             continue
         said.add(doubt.line)
-        description = item.description.rstrip(". ") + "; " + doubt.sentence()
+        description = item.description.rstrip(". ") + "; " + _sentence(doubt)
         out.append(replace(item, description=description, scale=doubt))
     return widened, out
 

@@ -275,9 +275,6 @@ class LineScale(NamedTuple):
     minutes: float  # its mid-time, from the session's first reading
     by_run: FloatArray  # per reading: its run's own slope times the distance from the line's middle
     energy: float  # the line's residual sum of squares
-    run_slopes: FloatArray  # per run: its own slope (µm per mm)
-    run_minutes: FloatArray  # per run: its mid-time, from the session's first reading
-    run_numbers: IntArray  # per run: its number, from 1
 
 
 def line_scale(fit: Identification, index: int) -> LineScale:
@@ -291,19 +288,15 @@ def line_scale(fit: Identification, index: int) -> LineScale:
     counts = np.bincount(cell)
     dof = rows.size - counts.size
     scatter = float(np.sum(cell_centred(cell, counts, r) ** 2)) / max(dof, 1)
-    numbers, run = np.unique(readings.run[rows], return_inverse=True)
+    _, run = np.unique(readings.run[rows], return_inverse=True)
     per_run = np.bincount(run, weights=q * r) / np.maximum(np.bincount(run, weights=q * q), 1e-300)
-    minutes = readings.time_s[rows] / 60.0  # time_s counts from the first reading
     return LineScale(
         float(q @ r) / qq,
         max(scatter, 1e-300) / qq,
         dof,
-        float(minutes.mean()),
+        float(readings.time_s[rows].mean()) / 60.0,  # time_s counts from the first reading
         per_run[run] * q,
         float(r @ r),
-        per_run,
-        np.bincount(run, weights=minutes) / np.bincount(run),
-        numbers + 1,
     )
 
 
