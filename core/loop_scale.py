@@ -45,10 +45,11 @@ def scale_doubts(
 ) -> dict[str, ScaleDoubt]:
     """Per axis without a kept drift: the doubt of the unexplained line moving it alone (of
     ``lines``, names, or any such line of ``axes``, whose lines read different scales over the
-    session) whose runs read its scale farthest from ``final``'s, where the line's scale
+    session) whose passes read its scale farthest from ``final``'s, where the line's scale
     differs from the model's beyond its noise (its mean, or its course in time,
     :func:`~volucal.core.loop_courses.scales_in_time`; Bonferroni over the lines tested, at
-    ``alpha``) and the doubt exceeds the error's stated standard uncertainty."""
+    ``alpha``) and the doubt exceeds the error's stated standard uncertainty (an error the plan
+    does not identify has none to widen)."""
     readings = final.readings
     drifting = {e.axis for e in final.effects if isinstance(e, ThermalDrift)}
     names = set(lines)
@@ -82,6 +83,8 @@ def scale_doubts(
     model = final.model
     for axis, (index, passes, p) in found.items():
         eid = f"E{axis}{axis}"
+        if not final.is_identified(eid):
+            continue
         low, high = model.machine.stroke(axis)
         q = np.linspace(low, high, STROKE_POINTS)
         values = RECTANGULAR * passes.farthest * 1e-3 * (q - model.machine.reference(axis))
