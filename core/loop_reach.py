@@ -92,8 +92,8 @@ def reach_of_lines(
     names = [line.name for line in readings.lines]
     whole = refit(readings)
     ids = [eid for eid in final.identifiability.identified_ids if whole.is_identified(eid)]
-    stated = {eid: _rms_std(final, eid) for eid in ids}
-    with_line = {eid: _rms_std(whole, eid) for eid in ids}
+    stated = {eid: rms_std(final, eid) for eid in ids}
+    with_line = {eid: rms_std(whole, eid) for eid in ids}
     out = {}
     for name in dict.fromkeys(lines):
         index = names.index(name)
@@ -104,7 +104,7 @@ def reach_of_lines(
             if not without.is_identified(eid):
                 rests.append(eid)
                 continue
-            alone = _rms_std(without, eid)
+            alone = rms_std(without, eid)
             if alone > RESTS_RATIO * with_line[eid]:
                 rests.append(eid)
                 continue
@@ -141,7 +141,7 @@ def with_reach(unexplained: Sequence[Unexplained], reach: dict[str, Reach]) -> l
     return out
 
 
-def _rms_std(fit: Identification, eid: str) -> float:
+def rms_std(fit: Identification, eid: str) -> float:
     """The error's standard uncertainty, RMS over its stroke for a function."""
     _, _, std = fit.band(eid)
     return float(np.sqrt(np.mean(std**2)))

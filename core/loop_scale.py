@@ -22,7 +22,7 @@ uncertainty.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -32,6 +32,7 @@ from .effects import ThermalDrift
 from .identify import Identification
 from .loop_courses import moving_one_axis, scales_in_time
 from .loop_end import STROKE_POINTS, fit_in_gauge, with_shape_doubt
+from .loop_reach import rms_std
 from .loop_records import FloatArray, ScaleDoubt, Unexplained
 from .loop_tester import log10_text
 from .loop_unexplained import line_scale
@@ -41,7 +42,7 @@ RECTANGULAR = 1.0 / np.sqrt(3.0)
 
 
 def scale_doubts(
-    final: Identification, lines: Sequence[str], axes: Sequence[str], alpha: float
+    final: Identification, lines: Collection[str], axes: Collection[str], alpha: float
 ) -> dict[str, ScaleDoubt]:
     """Per axis without a kept drift: the doubt of the unexplained line moving it alone (of
     ``lines``, names, or any such line of ``axes``, whose lines read different scales over the
@@ -52,11 +53,10 @@ def scale_doubts(
     does not identify has none to widen)."""
     readings = final.readings
     drifting = {e.axis for e in final.effects if isinstance(e, ThermalDrift)}
-    names = set(lines)
     tested = [
         (index, axis)
         for index, axis in moving_one_axis(readings)
-        if (readings.lines[index].name in names or axis in axes) and axis not in drifting
+        if (readings.lines[index].name in lines or axis in axes) and axis not in drifting
     ]
     if not tested:
         return {}
@@ -92,8 +92,7 @@ def scale_doubts(
         delta = np.zeros(model.parameter_count)
         delta[model.parameter_slices[eid]] = coefficients
         move = float(np.sqrt(np.mean((model.functions[eid].basis.design(q) @ coefficients) ** 2)))
-        _, _, std = final.band(eid)
-        stated = float(np.sqrt(np.mean(std**2)))
+        stated = rms_std(final, eid)
         if move <= stated:
             continue
         far = int(np.argmax(np.abs(passes.scale_ppm)))
@@ -153,17 +152,16 @@ def _passes(fit: Identification, index: int) -> _Passes | None:
     minutes = np.bincount(run, weights=readings.time_s[rows]) / count / 60.0
     direction = readings.lines[index].data.run_direction[numbers]
     order = [int(i) for i in np.argsort(minutes) if full[i]]
-    scales, runs, times = [], [], []
-    k = 0
-    while k < len(order):
-        i = order[k]
-        j = order[k + 1] if k + 1 < len(order) else None
-        pair = j is not None and direction[i] != direction[j]
-        group = (i, j) if pair and j is not None else (i,)
-        scales.append(1e3 * float(np.mean(slope[list(group)])))
-        runs.append(tuple(int(numbers[g]) + 1 for g in group))
-        times.append(float(np.mean(minutes[list(group)])))
-        k += len(group)
+    groups: list[list[int]] = []
+    for i in order:
+        # a run back after a run out (or out after back) joins it; else it starts a pass
+        if groups and len(groups[-1]) == 1 and direction[groups[-1][0]] != direction[i]:
+            groups[-1].append(i)
+        else:
+            groups.append([i])
+    scales = [1e3 * float(np.mean(slope[g])) for g in groups]
+    runs = [tuple(int(numbers[i]) + 1 for i in g) for g in groups]
+    times = [float(np.mean(minutes[g])) for g in groups]
     return _Passes(np.array(scales), tuple(runs), np.array(times))
 
 
@@ -189,7 +187,7 @@ def with_scale_doubts(
     """``final`` widened by the scale doubts of its unexplained lines (:func:`scale_doubts`), and
     the entries saying them (on each line's first entry)."""
     lines = {u.line for u in unexplained if u.line}
-    doubts = scale_doubts(final, sorted(lines), [u.axis for u in unexplained if u.axis], alpha)
+    doubts = scale_doubts(final, lines, {u.axis for u in unexplained if u.axis}, alpha)
     if not doubts:
         return final, list(unexplained)
     widened = with_shape_doubt(final, [d.delta for d in doubts.values()], share=1.0)

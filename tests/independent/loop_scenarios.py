@@ -303,7 +303,8 @@ class Outcome:
     #: uncertainty
     error_ratios: dict[str, float] = field(default_factory=dict)
     #: the errors report["unexplained"] names: moved beyond their stated uncertainty when an
-    #: unexplained line is left out, or resting on such a line alone
+    #: unexplained line is left out, resting on such a line alone, or the positioning error whose
+    #: scale such a line reads apart (:func:`named_errors`)
     named: list[str] = field(default_factory=list)
 
     @property
