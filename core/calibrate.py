@@ -8,6 +8,7 @@ compensation files it is asked for.
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 from collections.abc import Mapping, Sequence
@@ -19,6 +20,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .compensation.export_common import DEFAULT_MAX_CORRECTION_UM, ExportOptions
+from .compensation.source import unmoved_axes
+from .compensation.verify import RATE_FLOOR_UM
 from .errors import ERROR_INFO, ErrorModel
 from .identify import Identification, UncertaintyBudget, parameters_report
 from .loop_source import LoopSource, measured_range, parameter_map
@@ -171,6 +174,15 @@ def calibrate(
     report(progress, 0.93, "predicting the compensation")
     verification = exports[0].verification if exports else None
     result["compensation"] = compensation_report(source, tuple(files), verification)
+    unmoved = unmoved_axes(source)
+    if unmoved:
+        where = ", ".join(f"{axis} = {position:g} mm" for axis, position in unmoved.items())
+        result["warnings"] = [
+            *result.get("warnings", []),
+            f"no measured line moved {' or '.join(unmoved)} (every reading at {where}): no "
+            "error of their own travel is identified, their compensation tables correct none, "
+            "and no rate is predicted along them where the model has no error",
+        ]
     if request.project_path is not None:
         report(progress, 0.96, "saving the project")
         save_project(
@@ -417,11 +429,27 @@ def summary_table(result: Mapping[str, Any]) -> str:
         lines.append(
             "predicted compensation rate on the model (RMS-based, %)         X      Y      Z"
         )
-        for name, method in methods.items():
-            r = method.get("rms_percent", {})
-            if r:
-                lines.append(f"  {name:<60} {r['X']:5.1f}  {r['Y']:5.1f}  {r['Z']:5.1f}")
+        cells = {
+            name: [_rate_cell(method["rms_percent"].get(axis)) for axis in "XYZ"]
+            for name, method in methods.items()
+            if method.get("rms_percent")
+        }
+        for name, row in cells.items():
+            lines.append(f"  {name:<60} {'  '.join(row)}")
+        if any(cell.strip() == "—" for row in cells.values() for cell in row):
+            lines.append(
+                f"  —: no error along that direction to compensate (below {RATE_FLOOR_UM * 1e3:g} "
+                "nm RMS on the model)"
+            )
     return "\n".join(lines)
+
+
+def _rate_cell(value: float | None) -> str:
+    """A compensation rate (%) in the console's 5-character column; "—" where it is undefined
+    (None or NaN: no error to compensate)."""
+    if value is None or not math.isfinite(value):
+        return f"{'—':>5}"
+    return f"{value:5.1f}"
 
 
 def _squareness_lines(result: Mapping[str, Any]) -> list[str]:
@@ -449,7 +477,6 @@ def _squareness_lines(result: Mapping[str, Any]) -> list[str]:
 
 def _pm(entry: Mapping[str, Any], key: str) -> str:
     return f"{entry[f'{key}_urad']:.2f} ± {entry[f'{key}_std_urad']:.2f}"
-
 
 
 def _short(parameters: Mapping[str, Any]) -> str:

@@ -42,7 +42,7 @@ from .export_common import (
 from .limits import check_axis_names, check_sizes, limits_of, point_limit
 from .ncprogram import rewrite_file
 from .plausibility import AppliedValues, check_limit, check_plausible, table_values
-from .source import ErrorSource, as_source, measured_range
+from .source import ErrorSource, as_source, table_extents
 from .tables import CompensationTables, build_tables
 from .verify import (
     Compensation,
@@ -288,9 +288,7 @@ def _check_options(format: str, source: ErrorSource, options: ExportOptions) -> 
     point_limit(format, options.max_points)
     check_axis_names(format, options.axis_names)
     check_limit(options.max_correction_um)
-    extents = dict(measured_range(source))
-    if options.range_mm:
-        extents.update({a: (float(v[0]), float(v[1])) for a, v in options.range_mm.items()})
+    extents = table_extents(source, options.range_mm)
     check_sizes(extents, options.spacing_mm, options.grid_spacing_mm)
 
 

@@ -41,7 +41,7 @@ from .export_common import (
     write_text,
 )
 from .limits import LIMITS, MAX_TABLE_NODES, check_values, point_limit
-from .source import ErrorSource, measured_range
+from .source import ErrorSource, table_extents
 
 MAX_NUMBER = 1023  # pitch error compensation point numbers 0..1023 (Series 16i/18i/0i)
 MAX_VALUE = 127  # per-point setting range -128..127
@@ -54,9 +54,7 @@ def table_nodes(source: ErrorSource, options: ExportOptions) -> dict[str, tuple[
     """Compensation points: the reference position plus whole intervals covering the range."""
     unit_mm = _detection_unit_mm(options)
     interval = _interval_mm(options, unit_mm)
-    extents = dict(measured_range(source))
-    if options.range_mm:
-        extents.update({a: (float(v[0]), float(v[1])) for a, v in options.range_mm.items()})
+    extents = table_extents(source, options.range_mm)
     nodes = {}
     for axis in AXES:
         ref = source.machine.reference(axis)

@@ -167,6 +167,28 @@ def measured_range(source: ErrorSource) -> dict[str, tuple[float, float]]:
     return {a: source.machine.stroke(a) for a in AXES}
 
 
+def unmoved_axes(source: ErrorSource) -> dict[str, float]:
+    """The axes no measured line moved: every reading of the measurement at one position of
+    the axis (a plan that measures X alone holds Y and Z still). Per axis, that position (mm)."""
+    return {axis: low for axis, (low, high) in measured_range(source).items() if not high > low}
+
+
+def table_extents(
+    source: ErrorSource, range_mm: Mapping[str, tuple[float, float]] | None = None
+) -> dict[str, tuple[float, float]]:
+    """Per axis, the extent a compensation table or a verification grid spans: ``range_mm``
+    where given, else the measured range; an axis no line moved (:func:`unmoved_axes`) spans its
+    stroke, where its table holds the model's values: a model identified from such a plan has no
+    error of that axis' own travel, so its tables correct none (a range of one position would
+    leave the axis without a table, which no controller loads)."""
+    extents = dict(measured_range(source))
+    for axis in unmoved_axes(source):
+        extents[axis] = source.machine.stroke(axis)
+    if range_mm:
+        extents.update({a: (float(v[0]), float(v[1])) for a, v in range_mm.items()})
+    return extents
+
+
 def rigid_model(source: ErrorSource) -> ErrorModel | None:
     """The rigid-body ErrorModel behind a source, when it exposes one."""
     model = getattr(source, "model", None)

@@ -34,7 +34,7 @@ from ..progress import CancelToken, ProgressCallback, check, report
 from ..userror import UserError
 from .inverse import invert
 from .limits import MAX_TABLE_NODES, check_sizes, node_count
-from .source import ErrorSource, measured_range
+from .source import ErrorSource, measured_range, table_extents, unmoved_axes
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -236,10 +236,8 @@ def build_tables(
     assert machine.reference_mm is not None
     line = _vector(request.line_mm or machine.reference_mm)
     measured = measured_range(source)
-    extents = {a: measured[a] for a in AXES}
-    if request.range_mm:
-        for axis, pair in request.range_mm.items():
-            extents[axis] = (float(pair[0]), float(pair[1]))
+    extents = table_extents(source, request.range_mm)
+    unmoved = unmoved_axes(source)
     flags: list[str] = []
     axis_tables: dict[str, AxisTable] = {}
     cross_tables: list[CrossAxisTable] = []
@@ -250,7 +248,14 @@ def build_tables(
         own, cross = _line_tables(source, axis, nodes, line, tool, measured[axis])
         axis_tables[axis] = own
         cross_tables.extend(cross)
-        if np.any(own.beyond_range):
+        if axis in unmoved:
+            flags.append(
+                f"{axis} table: no measured line moved {axis} (every reading at {axis} = "
+                f"{unmoved[axis]:g} mm); its {nodes.size} nodes over [{nodes[0]:g}, "
+                f"{nodes[-1]:g}] mm hold the model's values, which nothing measured along {axis} "
+                "backs"
+            )
+        elif np.any(own.beyond_range):
             outside = own.position_mm[own.beyond_range]
             low, high = measured[axis]
             flags.append(
@@ -282,8 +287,8 @@ def _nodes(request: TableRequest, axis: str, extent: tuple[float, float]) -> Flo
         return nodes
     if not extent[1] > extent[0]:
         raise UserError(
-            f"the {axis} table would span [{extent[0]:g}, {extent[1]:g}] mm: the measured range "
-            f"of {axis} is a single position; give the table extent (range_mm) to compensate it"
+            f"the {axis} table would span [{extent[0]:g}, {extent[1]:g}] mm, a single position: "
+            "give an extent (range_mm) from a lower to a higher position"
         )
     return even_nodes(extent[0], extent[1], request.spacing_for(axis))
 

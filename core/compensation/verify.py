@@ -35,7 +35,7 @@ from ..progress import CancelToken, ProgressCallback, check, report
 from .controller import axis_compensation, reversal_compensation
 from .inverse import invert
 from .limits import check_sizes
-from .source import ErrorSource, measured_range
+from .source import ErrorSource, table_extents
 from .tables import CompensationTables, VolumetricGrid, even_nodes
 
 FloatArray = NDArray[np.float64]
@@ -126,8 +126,15 @@ class Rates:
         }
 
 
+#: Below this (µm: a nanometre, a laser interferometer's resolution) a direction has no error to
+#: compensate, and a rate would divide rounding by rounding: a plan that measures X alone leaves
+#: the model's Ey at 10⁻¹⁴ µm, which "compensates" by 100 % or by −0.003 % alike.
+RATE_FLOOR_UM = 1e-3
+
+
 def compensation_rates(before_um: ArrayLike, after_um: ArrayLike) -> Rates:
-    """Rates per direction from residuals before and after (each (n, 3), µm)."""
+    """Rates per direction from residuals before and after (each (n, 3), µm); NaN (null in
+    report.json) for a direction whose error before is below :data:`RATE_FLOOR_UM`."""
     b = np.asarray(before_um, dtype=float).reshape(-1, 3)
     a = np.asarray(after_um, dtype=float).reshape(-1, 3)
     rms_b = np.sqrt(np.mean(b**2, axis=0))
@@ -137,7 +144,7 @@ def compensation_rates(before_um: ArrayLike, after_um: ArrayLike) -> Rates:
 
     def rate(after: FloatArray, before: FloatArray) -> dict[str, float]:
         with np.errstate(divide="ignore", invalid="ignore"):
-            values = np.where(before > 0, 100.0 * (1.0 - after / before), np.nan)
+            values = np.where(before >= RATE_FLOOR_UM, 100.0 * (1.0 - after / before), np.nan)
         return {axis: float(values[k]) for k, axis in enumerate(AXES)}
 
     def per_axis(values: FloatArray) -> dict[str, float]:
@@ -286,9 +293,7 @@ def verify(
     request = request or VerifyRequest()
     machine = truth.machine
     tool = tuple(float(v) for v in (request.tool_offset_mm or machine.tool_offset_mm))
-    extents = dict(measured_range(truth))
-    if request.range_mm:
-        extents.update({a: (float(v[0]), float(v[1])) for a, v in request.range_mm.items()})
+    extents = table_extents(truth, request.range_mm)
     points = verification_points(extents, request.grid_spacing_mm)
     probe = points[:: max(1, len(points) // 200)]
     gap = truth.error_um(probe, np.ones(3), tool) - truth.error_um(probe, -np.ones(3), tool)

@@ -125,12 +125,22 @@ def test_bad_requests_are_user_errors() -> None:
         build_tables(source, TableRequest(grid_spacing_mm=-1.0))
 
 
-def test_an_axis_measured_at_one_position_needs_an_explicit_extent() -> None:
+def test_an_axis_measured_at_one_position_spans_its_stroke_and_is_flagged() -> None:
     class Narrow(ModelSource):
         measured_range_mm = {"X": (0.0, 400.0), "Y": (100.0, 100.0), "Z": (0.0, 350.0)}
 
     source = Narrow(paper_like_model())
+    tables = build_tables(source, TableRequest(grid_spacing_mm=None))
+    y = tables.axis["Y"]
+    assert y.position_mm[0] == 0.0 and y.position_mm[-1] == 400.0
+    assert np.array_equal(y.beyond_range, y.position_mm != 100.0)
+    assert [f for f in tables.flags if f.startswith("Y table")] == [
+        "Y table: no measured line moved Y (every reading at Y = 100 mm); its 41 nodes over "
+        "[0, 400] mm hold the model's values, which nothing measured along Y backs"
+    ]
+    assert not any(f.startswith(("X table", "Z table")) for f in tables.flags)
+    # an explicit extent is taken as given; one of a single position is refused
+    tables = build_tables(source, TableRequest(range_mm={"Y": (50.0, 150.0)}, grid_spacing_mm=None))
+    assert tables.axis["Y"].position_mm[0] == 50.0 and tables.axis["Y"].position_mm[-1] == 150.0
     with pytest.raises(UserError, match="single position"):
-        build_tables(source)
-    tables = build_tables(source, TableRequest(range_mm={"Y": (0.0, 400.0)}, grid_spacing_mm=None))
-    assert np.all(tables.axis["Y"].beyond_range[tables.axis["Y"].position_mm != 100.0])
+        build_tables(source, TableRequest(range_mm={"Y": (100.0, 100.0)}))
