@@ -52,8 +52,9 @@ from .settings import Preferences, last_folder, set_last_folder
 from .view_base import View
 
 SOURCES = (
-    ("model", "21-error model, direction-free (as volucal export)"),
-    ("effects", "model + the loop's effects: forward/backward tables from the reversal"),
+    ("effects", "21 errors + the loop's effects, as volucal export: forward/backward tables "
+                "from the reversal"),
+    ("model", "21 errors alone, direction-free, over the strokes"),
 )
 LINUXCNC_TYPES = ("type 0: actual positions reached (LinuxCNC adds nominal − actual)",
                   "type 1: offsets added to the command")
@@ -283,9 +284,7 @@ class CompensationView(View):
         if not name:
             raise UserError("identify the errors first: there is nothing to compensate")
         with_effects = self.source_box.currentData() == "effects"
-        live = self.document.live.get(("identifications", name))
-        source = jobs.export_source(self.document.project, name,
-                                    None if live is None else live.value, with_effects)
+        source = jobs.export_source(self.document.project, name, with_effects)
         return source, name, with_effects
 
     # ---- running -------------------------------------------------------------------------------
@@ -402,12 +401,6 @@ class CompensationView(View):
         wanted = current if current in names else default_identification(names)
         if wanted:
             self.identification_box.setCurrentText(wanted)
-        has_live = any(("identifications", n) in self.document.live for n in names)
-        model_item = self.source_box.model().item(1)  # type: ignore[attr-defined]
-        model_item.setEnabled(has_live)
-        model_item.setToolTip("" if has_live else "needs the loop run in this session")
-        if not has_live:
-            self.source_box.setCurrentIndex(0)
         self.preview_button.setEnabled(bool(names) and not self.runner.busy)
         self.export_button.setEnabled(bool(names) and not self.runner.busy)
         if not names:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from volucal.core.calibrate import CalibrationRequest, LoopSource, calibrate, measured_range
+from volucal.core.calibrate import CalibrationRequest, calibrate
 from volucal.core.compensation import ExportOptions, ExportResult, ModelSource, export_model
 from volucal.core.compensation.export import compensation_report
 from volucal.core.compensation.source import ErrorSource
@@ -32,7 +32,7 @@ from volucal.core.progress import CancelToken, ProgressCallback, check, report
 from volucal.core.project import Project
 from volucal.core.residuals import LoopOptions, LoopResult, close_loop
 from volucal.core.resources import demo_plan
-from volucal.core.result_trees import loop_result_trees
+from volucal.core.result_trees import loop_result_trees, stored_source
 from volucal.core.squareness_map import identification_squareness
 
 from .factors import RANKING_GRID_MM, SensitivitySetup, sensitivity_tree
@@ -247,20 +247,18 @@ def build_demo_project(path: Path, sensitivity_n: int = 1400,
 # --------------------------------------------------------------------------------------------
 
 
-def export_source(project: Project, identification: str,
-                  live: Identification | None = None, with_effects: bool = False
+def export_source(project: Project, identification: str, with_effects: bool = True
                   ) -> ErrorSource:
     """The error source of an export.
 
-    Without effects: the stored model of ``identification`` as a :class:`ModelSource`, read
-    exactly as ``volucal export PROJECT --identification NAME`` reads it (same files). With
-    effects: the live identification's model plus its machine effects (reversal, cyclic, ...)
-    as ``volucal calibrate --export`` uses it, so that the tables differ forward and backward.
+    With effects: the stored identification's 21 errors and the loop's kept machine effects
+    (reversal, cycles, ...) over its measured range, read exactly as ``volucal export PROJECT
+    --identification NAME`` and ``volucal calibrate --export`` read it (same files), so that
+    the tables differ forward and backward. Without: the 21 errors alone, direction-free, as a
+    :class:`ModelSource` over the strokes.
     """
     if with_effects:
-        if live is None:
-            raise ValueError("the loop's effects need the identification computed in this session")
-        return LoopSource(live, measured_range(live))
+        return stored_source(project, identification)
     return ModelSource(stored_model(project, identification))
 
 

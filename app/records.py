@@ -139,7 +139,7 @@ def identify_options(stored: Mapping[str, Any], budget: Any = None) -> IdentifyO
 
 
 def stored_model(project: Project, name: str) -> ErrorModel:
-    """The error model of identification ``name``, exactly as ``volucal export`` reads it."""
+    """The 21 errors of identification ``name`` (without the loop's effects)."""
     if project.machine is None:
         raise UserError("the project has no machine yet: import a plan first")
     tree = project.result("identifications", name)

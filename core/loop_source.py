@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -28,10 +28,39 @@ class LoopSource:
         measured_range_mm: Mapping[str, tuple[float, float]] | None = None,
     ) -> None:
         effects = tuple(e for e in identification.effects if isinstance(e, Effect))
-        self.identification = identification
-        self.model = refined_model(identification.model, effects, identification.effect_parameters)
+        self.identification: Identification | None = identification
+        self._extend(
+            identification.model,
+            tuple(zip(effects, identification.effect_parameters, strict=True)),
+            measured_range_mm,
+        )
+
+    @classmethod
+    def stored(
+        cls,
+        model: ErrorModel,
+        effects: Sequence[tuple[Effect, FloatArray]],
+        measured_range_mm: Mapping[str, tuple[float, float]] | None = None,
+    ) -> LoopSource:
+        """The source of an identification as a project keeps it: its 21 errors (``model``,
+        before the kept refinements are folded in) and each kept effect with its fitted values;
+        no covariance, no readings (``identification`` is None)."""
+        source = object.__new__(cls)
+        source.identification = None
+        source._extend(model, tuple(effects), measured_range_mm)
+        return source
+
+    def _extend(
+        self,
+        model: ErrorModel,
+        effects: tuple[tuple[Effect, FloatArray], ...],
+        measured_range_mm: Mapping[str, tuple[float, float]] | None,
+    ) -> None:
+        self.model = refined_model(
+            model, tuple(e for e, _ in effects), tuple(v for _, v in effects)
+        )
         self.machine: Machine = self.model.machine
-        self.effects = tuple(zip(effects, identification.effect_parameters, strict=True))
+        self.effects = effects
         self._volumetric = VolumetricModel(self.model)
         self.measured_range_mm = dict(measured_range_mm or {})
 

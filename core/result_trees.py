@@ -9,7 +9,8 @@ after, the RMS per group of lines) and in ``volucal export`` and ``volucal repor
   (``model``, ``covariance``, ``sigma_scale``, ``identifiability_json``, ``parameters_json``)
   plus ``readings`` (every reading's context and residual, :class:`ReadingTable`),
   ``effects_json`` (the effects fitted with the 21 errors, with the constructor fields needed to
-  refit them), ``options_json`` (how it was identified), ``squareness_map_json`` (report.json's
+  refit them and their fitted ``values``, from which :func:`stored_source` rebuilds them),
+  ``options_json`` (how it was identified), ``squareness_map_json`` (report.json's
   ``squareness_over_volume`` of this identification) and the residual RMS.
 - ``/loops/<name>``: ``report_json`` (the loop blocks of report.json), ``candidates_json``
   (every effect the loop tried, kept or rejected), ``decisions_json`` (a user's accept/reject
@@ -37,6 +38,7 @@ from numpy.typing import NDArray
 from . import effects as effects_module
 from .effects import Effect
 from .identify import Identification, IdentifyOptions, parameters_report, residual_rms
+from .loop_source import LoopSource
 from .machine import Machine
 from .measurement import Measurement
 from .residuals import LoopResult, line_group
@@ -309,8 +311,48 @@ def effect_entries(identification: Identification) -> list[dict[str, Any]]:
             continue
         entry = effect_to_json(effect)
         entry["parameters"] = json_safe(effect.parameters(values, cov))
+        # its fitted values as they are, so that an export rebuilds it (stored_source)
+        entry["values"] = json_safe(values)
         out.append(entry)
     return out
+
+
+#: The kinds of effect a compensation carries (LoopSource): reversal, cycles, surfaces and bumps
+#: act on the machine, and a finer function is folded into the 21 errors. A drift is reported,
+#: not compensated, and a set-up effect describes the measurement.
+COMPENSATED_KINDS = ("reversal", "cyclic", "cross_axis", "local", "higher_order")
+
+
+def stored_source(project: Any, name: str) -> LoopSource:
+    """Identification ``name`` of ``project`` as the compensation source ``volucal calibrate
+    --export`` used: its 21 errors with the kept machine effects (each rebuilt from its stored
+    fields and fitted values) over the range its readings covered. A project saved before the
+    effects' values were stored cannot rebuild the effects it kept: refused, with what to do."""
+    from .project import error_model_from_tree
+
+    tree = project.result("identifications", name)
+    model = error_model_from_tree(tree.get("model", tree), project.machine)
+    entries = json.loads(str(tree.get("effects_json", "[]")))
+    lost = [e["label"] for e in entries if "values" not in e and e["kind"] in COMPENSATED_KINDS]
+    if lost:
+        raise UserError(
+            f"identification {name!r} of this project kept {', '.join(lost)}, but was saved "
+            "before volucal stored the values of the loop's effects, so no export can carry "
+            "them: run `volucal calibrate` on the plan again to write the project anew, or "
+            "export the 21 errors of the fit before the loop with --identification main"
+        )
+    measurement = project.measurement() if entries else None
+    effects = [
+        (effect_from_json(e, measurement), np.asarray(e["values"], dtype=float))
+        for e in entries
+        if "values" in e
+    ]
+    readings = tree.get("readings")
+    measured = None
+    if isinstance(readings, Mapping) and "position_mm" in readings:
+        q = np.asarray(readings["position_mm"], dtype=float).reshape(-1, 3)
+        measured = {a: (float(q[:, k].min()), float(q[:, k].max())) for k, a in enumerate("XYZ")}
+    return LoopSource.stored(model, effects, measured)
 
 
 def options_json(options: IdentifyOptions | None) -> dict[str, Any]:

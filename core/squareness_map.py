@@ -123,6 +123,7 @@ def squareness_map(source: LoopSource) -> tuple[SquarenessAtPlaces, ...]:
     uncertainty is first order: the angle's gradient over every unknown of the fit (the 21
     errors' gauge coordinates and the kept effects' values) through their joint covariance."""
     fit = source.identification
+    assert fit is not None, "the map needs the fit's covariance: a stored source has none"
     ranges = _ranges(source)
     places = _grid(ranges)
     mapping = parameter_map(fit, source.model)
@@ -260,6 +261,7 @@ def _gradients(
     """The angle's gradient at each of ``places`` over the fit's unknowns; ``mapping`` takes
     them to the refined model's parameters (:func:`parameter_map`)."""
     fit = source.identification
+    assert fit is not None
     columns = [b.columns for b in fit.system.blocks if b.kind == "effect"]
     tool = source.machine.tool_offset_mm
     sign = PATHS[sid][2]

@@ -15,7 +15,6 @@ from ..compensation import (
     FORMATS,
     ExportOptions,
     ExportResult,
-    ModelSource,
     export_model,
 )
 from ..compensation.export import FORMAT_HELP, SELF_EXACT_METHODS
@@ -55,7 +54,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "export",
         help="write compensation tables for a controller (or rewrite an NC program)",
         description=(
-            "Write compensation for a controller from the identified model of a project: "
+            "Write compensation for a controller from a project's identification (the closed "
+            "loop's, else the latest): its 21 errors with the loop's kept machine effects, the "
+            "same tables as volucal calibrate --export writes. Formats: "
             + "; ".join(f"{name}: {text}" for name, text in FORMAT_HELP.items())
             + ". Every export also writes volucal_export.json (units, signs, tool offset, flags, "
             "predicted compensation rates). Every table is checked against the controller's "
@@ -168,7 +169,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def load_source(path: Path, identification: str | None = None) -> ErrorSource:
-    """The identified model of a project as an error source."""
+    """Identification ``identification`` of a project (the loop's, else the latest) as the
+    error source ``volucal calibrate --export`` used (:func:`~volucal.core.result_trees.
+    stored_source`): its 21 errors with the loop's kept machine effects, over its measured
+    range."""
     try:
         from .. import project as project_module
     except ImportError:
@@ -182,18 +186,20 @@ def load_source(path: Path, identification: str | None = None) -> ErrorSource:
             f"{path}: the project has no identification yet; run `volucal identify {path}` first"
         )
     # The closed loop's final identification ("loop") when there is one: it has the kept
-    # refinements; otherwise the latest.
+    # effects; otherwise the latest.
     name = identification or ("loop" if "loop" in names else names[-1])
     if name not in names:
         raise UserError(
             f"{path}: no identification named {name!r}; the project has {', '.join(names)}"
         )
-    tree = project.result("identifications", name)
-    model_tree = tree.get("model", tree) if isinstance(tree, dict) else tree
     if project.machine is None:
         raise UserError(f"{path}: the project has no machine; import a plan first")
-    model = project_module.error_model_from_tree(model_tree, project.machine)
-    return ModelSource(model)
+    from ..result_trees import stored_source
+
+    try:
+        return stored_source(project, name)
+    except UserError as exc:
+        raise UserError(f"{path}: {exc}") from None
 
 
 def _axis_names(text: str | None) -> dict[str, str] | None:
