@@ -56,7 +56,11 @@ def handle(args: argparse.Namespace) -> int:
     for item in info.unidentifiable:
         print(f"not identified: {item.message}")
     print(f"redundant lines: {len(info.redundant_lines)} of {len(measurement.lines)}")
-    print(f"residual RMS {rms_um:.3f} µm (displacement), {rms_urad:.3f} µrad (angular)")
+    parts = [
+        f"{value:.3f} {unit} ({kind})" if np.isfinite(value) else f"no {kind} line"
+        for value, unit, kind in ((rms_um, "µm", "displacement"), (rms_urad, "µrad", "angular"))
+    ]
+    print(f"residual RMS {', '.join(parts)}")
     print(f"stored in {args.project} as /identifications/{args.name}")
     return 0
 
