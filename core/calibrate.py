@@ -8,7 +8,6 @@ compensation files it is asked for.
 from __future__ import annotations
 
 import json
-import math
 import os
 import tempfile
 from collections.abc import Mapping, Sequence
@@ -21,7 +20,7 @@ from numpy.typing import NDArray
 
 from .compensation.export_common import DEFAULT_MAX_CORRECTION_UM, ExportOptions
 from .compensation.source import unmoved_axes
-from .compensation.verify import RATE_FLOOR_UM
+from .compensation.verify import RATE_FLOOR_UM, rate_text
 from .errors import ERROR_INFO, ErrorModel
 from .identify import Identification, UncertaintyBudget, parameters_report
 from .loop_source import LoopSource, measured_range, parameter_map
@@ -430,7 +429,7 @@ def summary_table(result: Mapping[str, Any]) -> str:
             "predicted compensation rate on the model (RMS-based, %)         X      Y      Z"
         )
         cells = {
-            name: [_rate_cell(method["rms_percent"].get(axis)) for axis in "XYZ"]
+            name: [rate_text(method["rms_percent"].get(axis)) for axis in "XYZ"]
             for name, method in methods.items()
             if method.get("rms_percent")
         }
@@ -442,14 +441,6 @@ def summary_table(result: Mapping[str, Any]) -> str:
                 "nm RMS on the model)"
             )
     return "\n".join(lines)
-
-
-def _rate_cell(value: float | None) -> str:
-    """A compensation rate (%) in the console's 5-character column; "—" where it is undefined
-    (None or NaN: no error to compensate)."""
-    if value is None or not math.isfinite(value):
-        return f"{'—':>5}"
-    return f"{value:5.1f}"
 
 
 def _squareness_lines(result: Mapping[str, Any]) -> list[str]:

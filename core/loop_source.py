@@ -11,7 +11,7 @@ from .effects import Effect, HigherOrder, refined_model
 from .errors import AXIS_ERROR_IDS, SQUARENESS_IDS, ErrorModel, NodeTableBasis
 from .identify import Gauge, Identification
 from .kinematics import VolumetricModel
-from .machine import Machine
+from .machine import AXES, Machine
 
 FloatArray = NDArray[np.float64]
 
@@ -20,7 +20,9 @@ class LoopSource:
     """The extended model the loop produced, as a compensation error source: the 21 errors
     (with kept higher-order refinements folded in) plus the machine effects (reversal, cyclic,
     cross-axis, local defect). Set-up effects describe the measurement and are left out; a
-    thermal drift is reported, not compensated (the model is referred to the session start)."""
+    thermal drift is reported, not compensated (the model is referred to the session start).
+    Along an axis every reading saw at one position (a plan that measures X alone), the source
+    holds the errors measured there: no measurement says how they change along it."""
 
     def __init__(
         self,
@@ -63,6 +65,14 @@ class LoopSource:
         self.effects = effects
         self._volumetric = VolumetricModel(self.model)
         self.measured_range_mm = dict(measured_range_mm or {})
+        # an axis every reading saw at one position: what the model says away from it, no
+        # measurement backs (the plan sees combinations only, split at minimum norm), so the
+        # source holds the error measured there along that axis
+        self._pins = {
+            AXES.index(axis): low
+            for axis, (low, high) in self.measured_range_mm.items()
+            if not high > low
+        }
 
     def error_um(
         self,
@@ -71,6 +81,10 @@ class LoopSource:
         tool_offset_mm: ArrayLike | None = None,
     ) -> FloatArray:
         q = np.atleast_2d(np.asarray(positions_mm, dtype=float))
+        if self._pins:
+            q = q.copy()
+            for k, position in self._pins.items():
+                q[:, k] = position
         e = self._volumetric.error(q, tool_offset_mm)
         a = None if approach is None else np.atleast_2d(np.asarray(approach, dtype=float))
         for effect, values in self.effects:
@@ -80,8 +94,17 @@ class LoopSource:
 
 def measured_range(identification: Identification) -> dict[str, tuple[float, float]]:
     """Per axis, the range of positions the measured lines covered."""
-    q = identification.readings.position_mm
-    return {a: (float(q[:, k].min()), float(q[:, k].max())) for k, a in enumerate("XYZ")}
+    return range_of(identification.readings.position_mm)
+
+
+def range_of(positions_mm: ArrayLike) -> dict[str, tuple[float, float]]:
+    """Per axis, the lowest and highest of ``positions_mm`` (n × 3), to the nanometre: a plan's
+    positions (start + s·direction) carry rounding of 10⁻¹⁴ mm, which would print as −0."""
+    q = np.asarray(positions_mm, dtype=float).reshape(-1, 3)
+    return {
+        a: (round(float(q[:, k].min()), 6) + 0.0, round(float(q[:, k].max()), 6) + 0.0)
+        for k, a in enumerate(AXES)
+    }
 
 
 def parameter_map(identification: Identification, refined: ErrorModel) -> FloatArray:

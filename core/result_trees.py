@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from . import effects as effects_module
 from .effects import Effect
 from .identify import Identification, IdentifyOptions, parameters_report, residual_rms
-from .loop_source import LoopSource
+from .loop_source import LoopSource, range_of
 from .machine import Machine
 from .measurement import Measurement
 from .residuals import LoopResult, line_group
@@ -332,26 +332,27 @@ def stored_source(project: Any, name: str) -> LoopSource:
 
     tree = project.result("identifications", name)
     model = error_model_from_tree(tree.get("model", tree), project.machine)
-    entries = json.loads(str(tree.get("effects_json", "[]")))
-    lost = [e["label"] for e in entries if "values" not in e and e["kind"] in COMPENSATED_KINDS]
+    # a drift is reported, a set-up effect describes the measurement: neither is compensated
+    entries = [
+        e for e in json.loads(str(tree.get("effects_json", "[]"))) if e["kind"] in COMPENSATED_KINDS
+    ]
+    lost = [e["label"] for e in entries if "values" not in e]
     if lost:
         raise UserError(
             f"identification {name!r} of this project kept {', '.join(lost)}, but was saved "
             "before volucal stored the values of the loop's effects, so no export can carry "
-            "them: run `volucal calibrate` on the plan again to write the project anew, or "
-            "export the 21 errors of the fit before the loop with --identification main"
+            "them: run the loop again (`volucal calibrate` on the plan, or the workbench's "
+            "loop) to store them, or export the 21 errors without them (`volucal export "
+            "--identification main`, or the workbench's \"21 errors alone\")"
         )
     measurement = project.measurement() if entries else None
     effects = [
-        (effect_from_json(e, measurement), np.asarray(e["values"], dtype=float))
-        for e in entries
-        if "values" in e
+        (effect_from_json(e, measurement), np.asarray(e["values"], dtype=float)) for e in entries
     ]
     readings = tree.get("readings")
     measured = None
     if isinstance(readings, Mapping) and "position_mm" in readings:
-        q = np.asarray(readings["position_mm"], dtype=float).reshape(-1, 3)
-        measured = {a: (float(q[:, k].min()), float(q[:, k].max())) for k, a in enumerate("XYZ")}
+        measured = range_of(readings["position_mm"])
     return LoopSource.stored(model, effects, measured)
 
 

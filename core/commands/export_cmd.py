@@ -20,6 +20,7 @@ from ..compensation import (
 from ..compensation.export import FORMAT_HELP, SELF_EXACT_METHODS
 from ..compensation.ncprogram import WORK_OFFSETS, RewriteOptions
 from ..compensation.source import ErrorSource
+from ..compensation.verify import rate_text
 from ..machine import AXES
 from ..userror import UserError
 
@@ -247,7 +248,7 @@ def _text(result: ExportResult) -> str:
             )
             continue
         rates = method.rates.rms_percent
-        values = " / ".join(f"{rates[a]:5.1f}" for a in AXES)
+        values = " / ".join(rate_text(rates[a]) for a in AXES)
         lines.append(f"  {name:<30} {values}   {method.description}")
     lines += [f"note: {n}" for n in result.notes]
     lines += [f"flag: {f}" for f in result.flags]

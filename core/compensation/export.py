@@ -49,6 +49,7 @@ from .verify import (
     ExactCompensation,
     VerificationResult,
     VerifyRequest,
+    defined,
     standard_compensations,
     verify,
 )
@@ -346,8 +347,8 @@ def compensation_report(
     return {
         "files": [str(Path(f).name) for f in files],
         "rate_percent": {
-            "volumetric": dict(methods[volumetric_name].rates.rms_percent),
-            "axis_tables": dict(methods["axis_tables"].rates.rms_percent),
+            "volumetric": defined(methods[volumetric_name].rates.rms_percent),
+            "axis_tables": defined(methods["axis_tables"].rates.rms_percent),
         },
         "rate_definition": (
             f"{verification.rate_definition}; volumetric = {volumetric_name}, axis_tables = "
@@ -359,8 +360,8 @@ def compensation_report(
         "methods": {
             name: {
                 "description": m.description,
-                "rms_percent": dict(m.rates.rms_percent),
-                "range_percent": dict(m.rates.range_percent),
+                "rms_percent": defined(m.rates.rms_percent),
+                "range_percent": defined(m.rates.range_percent),
             }
             for name, m in methods.items()
             if name not in SELF_EXACT_METHODS

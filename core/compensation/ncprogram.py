@@ -574,6 +574,16 @@ class _Rewriter:
         for k, axis in enumerate(AXES):
             low, high = ranges[axis]
             outside = (nominal[:, k] < low - 1e-9) | (nominal[:, k] > high + 1e-9)
+            if not high > low:
+                # an axis no line moved: one flag, not one per line
+                moving = len({owners[i] for i in np.flatnonzero(outside)})
+                if moving:
+                    self.flags.append(
+                        f"{axis}: no measured line moved {axis} (every reading at {axis} = "
+                        f"{low:g} mm); {moving} program line(s) lie elsewhere along it, where "
+                        "nothing was measured"
+                    )
+                continue
             for index in sorted({owners[i] for i in np.flatnonzero(outside)}):
                 self.flags.append(
                     f"line {lines[index]}: {axis} goes beyond the measured range [{low:g}, "

@@ -178,9 +178,9 @@ def table_extents(
 ) -> dict[str, tuple[float, float]]:
     """Per axis, the extent a compensation table or a verification grid spans: ``range_mm``
     where given, else the measured range; an axis no line moved (:func:`unmoved_axes`) spans its
-    stroke, where its table holds the model's values: a model identified from such a plan has no
-    error of that axis' own travel, so its tables correct none (a range of one position would
-    leave the axis without a table, which no controller loads)."""
+    stroke (a range of one position would leave the axis without a table, which no controller
+    loads), along which the identified machine (:class:`~volucal.core.loop_source.LoopSource`)
+    holds what was measured at that position."""
     extents = dict(measured_range(source))
     for axis in unmoved_axes(source):
         extents[axis] = source.machine.stroke(axis)

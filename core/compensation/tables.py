@@ -251,9 +251,8 @@ def build_tables(
         if axis in unmoved:
             flags.append(
                 f"{axis} table: no measured line moved {axis} (every reading at {axis} = "
-                f"{unmoved[axis]:g} mm); its {nodes.size} nodes over [{nodes[0]:g}, "
-                f"{nodes[-1]:g}] mm hold the model's values, which nothing measured along {axis} "
-                "backs"
+                f"{unmoved[axis]:g} mm); its {nodes.size} nodes span [{nodes[0]:g}, "
+                f"{nodes[-1]:g}] mm, along which nothing was measured"
             )
         elif np.any(own.beyond_range):
             outside = own.position_mm[own.beyond_range]

@@ -22,6 +22,7 @@ repeatability: A = E and R = B here).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -115,15 +116,28 @@ class Rates:
     max_after_um: Mapping[str, float]
 
     def to_json(self) -> dict[str, object]:
+        """Plain JSON: a rate that is not defined (no error to compensate) is None."""
         return {
-            "rms_percent": dict(self.rms_percent),
-            "range_percent": dict(self.range_percent),
+            "rms_percent": defined(self.rms_percent),
+            "range_percent": defined(self.range_percent),
             "rms_before_um": dict(self.rms_before_um),
             "rms_after_um": dict(self.rms_after_um),
             "range_before_um": dict(self.range_before_um),
             "range_after_um": dict(self.range_after_um),
             "max_abs_after_um": dict(self.max_after_um),
         }
+
+
+def defined(rates: Mapping[str, float]) -> dict[str, float | None]:
+    """Rates per axis direction with None where a rate is not defined (NaN)."""
+    return {axis: value if math.isfinite(value) else None for axis, value in rates.items()}
+
+
+def rate_text(value: float | None) -> str:
+    """A rate (%) in a 5-character column; "—" where it is not defined (None or NaN)."""
+    if value is None or not math.isfinite(value):
+        return f"{'—':>5}"
+    return f"{value:5.1f}"
 
 
 #: Below this (µm: a nanometre, a laser interferometer's resolution) a direction has no error to

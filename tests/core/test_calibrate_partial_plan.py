@@ -7,16 +7,18 @@ import math
 import shutil
 
 import numpy as np
+import pytest
 from volucal.core.cli import main
 from volucal.core.compensation.verify import RATE_FLOOR_UM, compensation_rates
 from volucal.core.resources import demo_plan
 
 
-def _x_alone(tmp_path):  # type: ignore[no-untyped-def]
-    """The demo's plan cut to its first line, x_linear, with its log."""
+def _x_alone(tmp_path, start=(0.0, 0.0, 0.0)):  # type: ignore[no-untyped-def]
+    """The demo's plan cut to its first line, x_linear, with its log, starting at ``start``."""
     source = demo_plan()
     head, first, *_ = source.read_text().split("[[line]]")
-    assert 'name = "x_linear"' in first
+    assert 'name = "x_linear"' in first and "start = [0.0, 0.0, 0.0]" in first
+    first = first.replace("start = [0.0, 0.0, 0.0]", f"start = {list(start)}")
     folder = tmp_path / "session"
     (folder / "logs").mkdir(parents=True)
     shutil.copy(source.parent / "logs" / "x_linear.rtl", folder / "logs")
@@ -30,10 +32,24 @@ def _comp_columns(path):  # type: ignore[no-untyped-def]
     return np.loadtxt(path, ndmin=2).T
 
 
+def _csv_rows(path):  # type: ignore[no-untyped-def]
+    """A generic CSV export's numeric columns (comment lines left out; an axis column kept as
+    text) by name."""
+    lines = [line for line in path.read_text().splitlines() if not line.startswith("#")]
+    names = lines[0].split(",")
+    rows = [line.split(",") for line in lines[1:] if line]
+    columns = {}
+    for k, name in enumerate(names):
+        cells = [row[k] for row in rows]
+        columns[name] = np.array(cells) if name.endswith("axis") else np.array(cells, float)
+    return columns
+
+
+@pytest.mark.parametrize("start", [(0.0, 0.0, 0.0), (0.0, 100.0, 50.0)])
 def test_a_plan_that_moves_x_alone_is_calibrated_exported_and_says_what_it_cannot_compensate(
-    tmp_path, capsys
+    tmp_path, capsys, start
 ) -> None:
-    plan = _x_alone(tmp_path)
+    plan = _x_alone(tmp_path, start)
     project, report, out = tmp_path / "p.h5", tmp_path / "r.json", tmp_path / "out"
     args = ["calibrate", str(plan), "--project", str(project), "--report", str(report)]
     args += ["--export", str(out), "--format", "linuxcnc", "--format", "csv"]
@@ -44,9 +60,18 @@ def test_a_plan_that_moves_x_alone_is_calibrated_exported_and_says_what_it_canno
     # X is measured: its tables correct it; Y and Z have nothing to compensate, and say so
     for method in ("volumetric", "axis_tables"):
         rates = written["compensation"]["rate_percent"][method]
-        assert math.isfinite(rates["X"]) and rates["X"] > 50.0
+        assert math.isfinite(rates["X"]) and rates["X"] > 90.0
         assert rates["Y"] is None and rates["Z"] is None
-    warning = "no measured line moved Y or Z (every reading at Y = 0 mm, Z = 0 mm)"
+    # what the model says away from the line, along Y or Z, no measurement backs: the errors
+    # are held at the line's place (no cross table, a grid constant along Y and Z)
+    cross = _csv_rows(out / "csv" / "cross_axis_tables.csv")
+    assert np.max(np.abs(cross["error_um"])) < 1e-3
+    grid = _csv_rows(out / "csv" / "volumetric_grid.csv")
+    for x in np.unique(grid["x_mm"]):
+        assert np.ptp(grid["error_x_um"][grid["x_mm"] == x]) < 1e-6
+    warning = (
+        f"no measured line moved Y or Z (every reading at Y = {start[1]:g} mm, Z = {start[2]:g} mm)"
+    )
     assert any(w.startswith(warning) for w in written["warnings"])
     assert f"warning: {warning}" in captured.out
     assert "—: no error along that direction to compensate" in captured.out
@@ -71,3 +96,25 @@ def test_a_direction_without_error_has_no_rate() -> None:
     rates = compensation_rates(before, 0.5 * before)
     assert rates.rms_percent["X"] == 50.0 and rates.rms_percent["Z"] == 50.0
     assert math.isnan(rates.rms_percent["Y"]) and math.isnan(rates.range_percent["Y"])
+
+
+def test_a_program_rewritten_along_an_axis_no_line_moved_is_flagged_once_per_axis(
+    tmp_path, capsys
+) -> None:
+    plan = _x_alone(tmp_path)
+    project = tmp_path / "p.h5"
+    assert main(["calibrate", str(plan), "--project", str(project), "--no-sensitivity"]) == 0
+    program = tmp_path / "part.ngc"
+    program.write_text("G21 G90\nG0 X0 Y0 Z0\nG1 X100 Y50 F1000\nG1 Y200\nG1 X50 Z-10\nM2\n")
+    out = tmp_path / "gcode"
+    args = ["export", str(project), "--format", "gcode", "--program", str(program)]
+    assert main([*args, "--out", str(out)]) == 0, capsys.readouterr().err
+    manifest = json.loads((out / "volucal_export.json").read_text())
+    said = manifest["notes"] + manifest["flags"]
+    # lines 3 to 5 lie off Y = 0, line 5 off Z = 0: one flag per axis, not one per line
+    assert [f for f in said if f.startswith("Y:")] == [
+        "Y: no measured line moved Y (every reading at Y = 0 mm); 3 program line(s) lie "
+        "elsewhere along it, where nothing was measured"
+    ]
+    assert len([f for f in said if f.startswith("Z:")]) == 1
+    assert not any("goes beyond the measured range [0, 0] mm" in f for f in said)

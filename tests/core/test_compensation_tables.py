@@ -135,8 +135,8 @@ def test_an_axis_measured_at_one_position_spans_its_stroke_and_is_flagged() -> N
     assert y.position_mm[0] == 0.0 and y.position_mm[-1] == 400.0
     assert np.array_equal(y.beyond_range, y.position_mm != 100.0)
     assert [f for f in tables.flags if f.startswith("Y table")] == [
-        "Y table: no measured line moved Y (every reading at Y = 100 mm); its 41 nodes over "
-        "[0, 400] mm hold the model's values, which nothing measured along Y backs"
+        "Y table: no measured line moved Y (every reading at Y = 100 mm); its 41 nodes span "
+        "[0, 400] mm, along which nothing was measured"
     ]
     assert not any(f.startswith(("X table", "Z table")) for f in tables.flags)
     # an explicit extent is taken as given; one of a single position is refused
