@@ -933,18 +933,22 @@ def _sensitivity(results: _Results) -> Section:
             "independent phase draws."
         )
     ]
+    # an error the plan does not identify varies by the analysis' floor alone
+    unidentified = set((results.identifiability or {}).get("unidentifiable_ids", []))
+    shown: set[str] = set()
     for output in ("Ex", "Ey", "Ez", "ET"):
         if output not in report:
             continue
         block = report[output]
         st = block["ST"]
         ranked = sorted(ERROR_IDS, key=lambda e: -_num(st.get(e)))[:TOP_SENSITIVITY]
+        shown.update(ranked)
         s1_std = block.get("S1_std", {})
         st_std = block.get("ST_std", {})
         rows = tuple(
             (
                 str(k + 1),
-                error_label(e),
+                error_label(e) + (" (not identified)" if e in unidentified else ""),
                 _pm(block["S1"].get(e), s1_std.get(e)),
                 _pm(st.get(e), st_std.get(e)),
             )
@@ -975,6 +979,17 @@ def _sensitivity(results: _Results) -> Section:
                 else (),
                 "index",
             )
+        )
+    if shown & unidentified:
+        blocks.insert(
+            1,
+            Paragraph(
+                'Errors marked "not identified" are not seen by this plan: they have no '
+                "identification uncertainty and vary by the analysis' floor alone (0.01 µm, "
+                "0.1 µrad), so their indices say what that floor would do, not what the machine "
+                "has. Read the ranking among the identified errors.",
+                "note",
+            ),
         )
     return Section("Sensitivity ranking (EFAST)", tuple(blocks))
 

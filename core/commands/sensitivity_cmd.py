@@ -122,18 +122,24 @@ def run(args: argparse.Namespace) -> int:
             positions = workspace_grid(PAPER_MACHINE, args.map)
         problem = paper_problem(positions, tool)
         result = analyse(problem, outputs, args.n, args.m, args.seed, args.repeats, args.method)
+        unidentified: frozenset[str] = frozenset()
     else:
-        result = _project_analysis(args, outputs, tool)
+        result, unidentified = _project_analysis(args, outputs, tool)
     if args.json:
-        print(json.dumps(_document(result), indent=1, allow_nan=False))
+        document = _document(result)
+        if args.project is not None:
+            document["not_identified"] = sorted(unidentified)
+        print(json.dumps(document, indent=1, allow_nan=False))
     else:
-        print(_text(result))
+        print(_text(result, unidentified))
     return 0
 
 
 def _project_analysis(
     args: argparse.Namespace, outputs: tuple[str, ...], tool: tuple[float, float, float] | None
-) -> SensitivityResult:
+) -> tuple[SensitivityResult, frozenset[str]]:
+    """The analysis of the project's identification, stored in the project, and the errors that
+    identification does not identify."""
     if args.positions == "noise":
         # The preset branch refuses it in the problem; refuse here before any file is read.
         raise PositionNoiseError(NOISE_EXPLANATION)
@@ -154,7 +160,7 @@ def _analyse_and_store(
     args: argparse.Namespace,
     outputs: tuple[str, ...],
     tool: tuple[float, float, float] | None,
-) -> SensitivityResult:
+) -> tuple[SensitivityResult, frozenset[str]]:
     project = project_module.Project.open(args.project)
     names = list(project.results("identifications"))
     if not names:
@@ -188,7 +194,8 @@ def _analyse_and_store(
     )
     project.put_result("sensitivity", args.name, {**result.to_tree(), "identification": name})
     project.save()
-    return result
+    identifiability = json.loads(str(tree.get("identifiability_json", "{}")))
+    return result, frozenset(identifiability.get("unidentifiable_ids", ()))
 
 
 def _outputs(values: list[str] | None) -> tuple[str, ...]:
@@ -248,7 +255,9 @@ def _label(factor: str) -> str:
     return f"{factor} ({'−' if info.paper_sign < 0 else ''}{info.paper})"
 
 
-def _text(result: SensitivityResult) -> str:
+def _text(result: SensitivityResult, unidentified: frozenset[str] = frozenset()) -> str:
+    """The six largest indices per output; an error the analysed identification does not
+    identify (``unidentified``) is marked, with what its indices mean."""
     settings = result.settings
     problem = settings.get("problem", {})
     assert isinstance(problem, dict)
@@ -261,6 +270,7 @@ def _text(result: SensitivityResult) -> str:
     ]
     if result.positions_mm is not None and len(result.positions_mm) > 1:
         lines.append("indices of the workspace-averaged variance (Σ V·S / Σ V over the points)")
+    marked = False
     for output in result.outputs:
         ws = result.workspace(output)
         spread = dict(zip(result.factor_ids, ws["S1_std"], strict=True))
@@ -270,5 +280,13 @@ def _text(result: SensitivityResult) -> str:
         for factor, value in result.top(output, "S1", 6):
             error = spread[factor]
             shown = f"{value:.3f}" + (f" ± {error:.3f}" if math.isfinite(error) else "")
-            lines.append(f"    {_label(factor):<18}{shown:>14}{total[factor]:>9.3f}")
+            mark = "  *" if factor in unidentified else ""
+            lines.append(f"    {_label(factor):<18}{shown:>14}{total[factor]:>9.3f}{mark}")
+            marked = marked or bool(mark)
+    if marked:
+        lines.append("")
+        lines.append(
+            "* not identified by this plan: varied by the floor alone (0.01 µm, 0.1 µrad), so "
+            "its indices say what that floor would do, not what the machine has"
+        )
     return "\n".join(lines)

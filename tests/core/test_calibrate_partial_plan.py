@@ -118,3 +118,33 @@ def test_a_program_rewritten_along_an_axis_no_line_moved_is_flagged_once_per_axi
     ]
     assert len([f for f in said if f.startswith("Z:")]) == 1
     assert not any("goes beyond the measured range [0, 0] mm" in f for f in said)
+
+
+def test_a_ranking_of_errors_the_plan_does_not_identify_says_so(tmp_path, capsys) -> None:
+    from volucal.core.report_content import ReportRequest, Table, build_report
+
+    plan = _x_alone(tmp_path)
+    project = tmp_path / "p.h5"
+    assert main(["calibrate", str(plan), "--project", str(project), "--quiet"]) == 0
+    capsys.readouterr()
+    # x_linear alone identifies no error by itself (EXX only with EBX): every one is marked
+    args = ["sensitivity", str(project), "--output", "Ex", "--n", "300", "--repeats", "1"]
+    assert main([*args, "--map", "200"]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("    E")]
+    assert len(rows) == 6 and all(row.endswith("  *") for row in rows)
+    assert "* not identified by this plan: varied by the floor alone" in out
+    assert main([*args, "--map", "200", "--json"]) == 0
+    document = json.loads(capsys.readouterr().out)
+    assert {"EBX", "EXX", "EYY", "EA0Z"} <= set(document["not_identified"])
+    section = next(
+        s
+        for s in build_report(ReportRequest(project)).sections
+        if s.title.startswith("Sensitivity")
+    )
+    ranked = [row[1] for block in section.blocks if isinstance(block, Table) for row in block.rows]
+    assert ranked and all(label.endswith(" (not identified)") for label in ranked)
+    assert any(
+        'marked "not identified" are not seen by this plan' in getattr(b, "text", "")
+        for b in section.blocks
+    )
