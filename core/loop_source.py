@@ -7,6 +7,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .compensation.source import unmoved_axes
 from .effects import Effect, HigherOrder, refined_model
 from .errors import AXIS_ERROR_IDS, SQUARENESS_IDS, ErrorModel, NodeTableBasis
 from .identify import Gauge, Identification
@@ -68,11 +69,7 @@ class LoopSource:
         # an axis every reading saw at one position: what the model says away from it, no
         # measurement backs (the plan sees combinations only, split at minimum norm), so the
         # source holds the error measured there along that axis
-        self._pins = {
-            AXES.index(axis): low
-            for axis, (low, high) in self.measured_range_mm.items()
-            if not high > low
-        }
+        self._pins = {AXES.index(axis): at for axis, at in unmoved_axes(self).items()}
 
     def error_um(
         self,

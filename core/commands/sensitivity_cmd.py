@@ -270,7 +270,7 @@ def _text(result: SensitivityResult, unidentified: frozenset[str] = frozenset())
     ]
     if result.positions_mm is not None and len(result.positions_mm) > 1:
         lines.append("indices of the workspace-averaged variance (Σ V·S / Σ V over the points)")
-    marked = False
+    listed: set[str] = set()
     for output in result.outputs:
         ws = result.workspace(output)
         spread = dict(zip(result.factor_ids, ws["S1_std"], strict=True))
@@ -282,8 +282,8 @@ def _text(result: SensitivityResult, unidentified: frozenset[str] = frozenset())
             shown = f"{value:.3f}" + (f" ± {error:.3f}" if math.isfinite(error) else "")
             mark = "  *" if factor in unidentified else ""
             lines.append(f"    {_label(factor):<18}{shown:>14}{total[factor]:>9.3f}{mark}")
-            marked = marked or bool(mark)
-    if marked:
+            listed.add(factor)
+    if listed & unidentified:
         lines.append("")
         lines.append(
             "* not identified by this plan: varied by the floor alone (0.01 µm, 0.1 µrad), so "
