@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -81,7 +81,11 @@ class FactorSetting:
 
 @dataclass(frozen=True)
 class SensitivitySetup:
-    """What the sensitivity view runs: the problem's kind, its factors and EFAST settings."""
+    """What the sensitivity view runs: the problem's kind, its factors and EFAST settings.
+
+    ``not_identified``: in identified mode, the errors the identification's plan cannot see;
+    they vary by the floor alone and every ranking marks them.
+    """
 
     mode: str
     factors: tuple[FactorSetting, ...]
@@ -89,6 +93,7 @@ class SensitivitySetup:
     seed: int = 0
     outputs: tuple[str, ...] = OUTPUT_NAMES
     identification: str | None = None
+    not_identified: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -104,8 +109,10 @@ class SensitivitySetup:
 
     @classmethod
     def identified(cls, model: ErrorModel, covariance: ArrayLike | None, n: int = 1400,
-                   seed: int = 0, identification: str | None = None) -> SensitivitySetup:
-        """The factor table of an identification: means over the strokes, RMS spreads."""
+                   seed: int = 0, identification: str | None = None,
+                   not_identified: Collection[str] = ()) -> SensitivitySetup:
+        """The factor table of an identification: means over the strokes, RMS spreads;
+        ``not_identified`` the errors its plan cannot see (its ``unidentifiable_ids``)."""
         spread = ErrorSpread(model, None if covariance is None else np.asarray(covariance, float),
                              FLOOR_UM, FLOOR_URAD)
         machine = model.machine
@@ -124,7 +131,8 @@ class SensitivitySetup:
             FactorSetting(eid, "normal", means[eid], sds[eid], ERROR_INFO[eid].unit)
             for eid in ERROR_IDS
         )
-        return cls("identified", factors, n, seed, OUTPUT_NAMES, identification)
+        unseen = tuple(eid for eid in ERROR_IDS if eid in set(not_identified))
+        return cls("identified", factors, n, seed, OUTPUT_NAMES, identification, unseen)
 
     @classmethod
     def paper_table2(cls, n: int = 1400, seed: int = 0) -> SensitivitySetup:
@@ -179,7 +187,8 @@ class SensitivitySetup:
             return analyse_model(
                 model, covariance, output=self.outputs, map_step_mm=map_step_mm, n=self.n,
                 seed=self.seed, spread=self.spread_overrides(), floor_um=FLOOR_UM,
-                floor_urad=FLOOR_URAD, progress=progress, cancel=cancel,
+                floor_urad=FLOOR_URAD, not_identified=self.not_identified, progress=progress,
+                cancel=cancel,
             )
         target = machine or (model.machine if model is not None else PAPER_MACHINE)
         positions: Any = "design" if map_step_mm is None else workspace_grid(target, map_step_mm)
@@ -198,6 +207,7 @@ class SensitivitySetup:
             "seed": self.seed,
             "outputs": list(self.outputs),
             "identification": self.identification,
+            "not_identified": list(self.not_identified),
             "factors": [
                 {"id": f.id, "distribution": f.distribution, "mean": f.mean,
                  "spread": f.spread, "unit": f.unit, "overridden": f.overridden}
@@ -215,7 +225,8 @@ class SensitivitySetup:
         identification = data.get("identification")
         return cls(str(data["mode"]), factors, int(data["n"]), int(data["seed"]),
                    tuple(data.get("outputs", OUTPUT_NAMES)),
-                   None if identification is None else str(identification))
+                   None if identification is None else str(identification),
+                   tuple(str(v) for v in data.get("not_identified", ())))
 
 
 def sensitivity_tree(result: SensitivityResult, setup: SensitivitySetup) -> dict[str, Any]:
@@ -260,6 +271,15 @@ class SensitivityRecord:
     def is_map(self) -> bool:
         return self.result is not None and self.result.positions_mm is not None and \
             len(self.result.positions_mm) > 1
+
+    @property
+    def not_identified(self) -> frozenset[str]:
+        """The errors the analysed identification does not identify: they varied by the floor
+        alone, and every ranking of this result marks them."""
+        ids: set[str] = set()
+        for entry in self.indices.values():
+            ids.update(entry.get("not_identified", ()))  # type: ignore[arg-type]
+        return frozenset(ids)
 
     def ranked(self, output: str, kind: str = "S1") -> list[tuple[str, float, float]]:
         """(id, S1, ST) sorted by ``kind`` (largest first); missing values count as 0."""

@@ -226,8 +226,9 @@ def build_demo_project(path: Path, sensitivity_n: int = 1400,
     budget_options = replace(options, identify=replace(options.identify,
                                                        budget=loop.base.budget))
     run = LoopRun.of(loop, budget_options)
-    setup = SensitivitySetup.identified(result.source.model, loop.final.covariance,
-                                        n=sensitivity_n, identification="loop")
+    setup = SensitivitySetup.identified(
+        result.source.model, loop.final.covariance, n=sensitivity_n, identification="loop",
+        not_identified=loop.base.identifiability.unidentifiable_ids)
     check(cancel)
     sensitivity = setup.run(result.source.model, loop.final.covariance, RANKING_GRID_MM,
                             progress=_sub(progress, 0.8, 0.95), cancel=cancel)

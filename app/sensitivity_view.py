@@ -9,7 +9,9 @@ shows a slice at a chosen Z as a heat map.
 
 from __future__ import annotations
 
+import json
 import math
+from collections.abc import Collection
 from dataclasses import replace
 
 import numpy as np
@@ -39,6 +41,8 @@ from .document import ProjectDocument
 from .engine import ProcessCall
 from .factors import (
     DISTRIBUTIONS,
+    FLOOR_UM,
+    FLOOR_URAD,
     RANKING_GRID_MM,
     SensitivityRecord,
     SensitivitySetup,
@@ -54,6 +58,9 @@ SPREAD_COLUMN = 3
 MEAN_COLUMN = 2
 DISTRIBUTION_COLUMN = 1
 STD_OUTPUT = "standard deviation of the output (µm)"
+NOT_IDENTIFIED = (f"* not identified by this plan: varied by the floor alone ({FLOOR_UM:g} µm, "
+                  f"{FLOOR_URAD:g} µrad), so its indices say what that floor would do, not what "
+                  "the machine has")
 #: Where the output barely varies its indices are ratios of noise to almost nothing: not shown.
 QUIET_VARIANCE = 1e-6
 POSITIONS = (
@@ -220,6 +227,12 @@ class SensitivityView(View):
         covariance = tree.get("covariance")
         return model, None if covariance is None else np.asarray(covariance, dtype=float)
 
+    def _unidentified(self, name: str) -> list[str]:
+        """The errors identification ``name``'s plan cannot see."""
+        tree = self.document.tree("identifications", name)
+        identifiability = json.loads(str(tree.get("identifiability_json", "{}")))
+        return list(identifiability.get("unidentifiable_ids", ()))
+
     def set_document(self, document: ProjectDocument) -> None:
         """Another project: nothing of this one's problem or results may stay."""
         self.setup = None
@@ -243,7 +256,8 @@ class SensitivityView(View):
             else:
                 model, covariance = self._model_and_covariance(name)
                 self.setup = SensitivitySetup.identified(
-                    model, covariance, n, identification=name)  # type: ignore[arg-type]
+                    model, covariance, n, identification=name,  # type: ignore[arg-type]
+                    not_identified=self._unidentified(name))
         except (UserError, KeyError) as exc:
             self.setup = None
             self.table_note.setText(f"cannot set up the problem: {exc}")
@@ -256,10 +270,12 @@ class SensitivityView(View):
         self.table.setRowCount(0 if setup is None else len(setup.factors))
         if setup is not None:
             identified = setup.mode == "identified"
+            unseen = set(setup.not_identified)
             for row, factor in enumerate(setup.factors):
-                name = QTableWidgetItem(error_label(factor.id))
+                name = QTableWidgetItem(_marked(factor.id, unseen))
                 name.setData(Qt.ItemDataRole.UserRole, factor.id)
-                name.setToolTip(ERROR_INFO[factor.id].description)
+                name.setToolTip(ERROR_INFO[factor.id].description + (
+                    f"\n{NOT_IDENTIFIED}" if factor.id in unseen else ""))
                 cells = [
                     name,
                     QTableWidgetItem(factor.distribution),
@@ -281,7 +297,8 @@ class SensitivityView(View):
                 self.table_note.setText(
                     "Identified errors: each is its identified function of position plus a "
                     "normal deviation. Mean and spread are over the stroke; set a spread to "
-                    "replace that error's uncertainty, then Run.")
+                    "replace that error's uncertainty, then Run." + (
+                        f"\n{NOT_IDENTIFIED}" if unseen else ""))
             else:
                 self.table_note.setText(
                     f"By hand: each error is one random value ({', '.join(DISTRIBUTIONS)}); "
@@ -403,6 +420,10 @@ class SensitivityView(View):
             source = self.setup.identification
             self._setup_token = None if source is None else self.document.result_token(
                 "identifications", source)
+            if source in names:
+                # what the identification cannot see (a setup saved before it was kept, too)
+                self.setup = replace(self.setup, not_identified=tuple(
+                    self._unidentified(source)))
         if self.setup is not None and self.setup.mode == "identified" and \
                 self._setup_token != self.document.result_token(
                     "identifications", self.setup.identification or ""):
@@ -468,7 +489,8 @@ class SensitivityView(View):
                                      brush=plots.brush(plots.FORWARD, 200), name="S1 first order"))
         item.addItem(pg.BarGraphItem(x0=0.0, y=y + 0.19, height=0.36, width=st,
                                      brush=plots.brush(plots.color(1), 200), name="ST total"))
-        plots.category_ticks(item.getAxis("left"), [error_label(r[0]) for r in rows])
+        unseen = record.not_identified
+        plots.category_ticks(item.getAxis("left"), [_marked(r[0], unseen) for r in rows])
         values = np.concatenate([s1, st, [0.0]])
         low, high = float(np.min(values)), max(float(np.max(values)), 1e-3)
         item.setXRange(low - 0.05 * (high - low), high * 1.05, padding=0)
@@ -480,6 +502,8 @@ class SensitivityView(View):
             title += f" — positions are design factors (their S1: {shares})"
         elif record.is_map:
             title += " — workspace average of the map"
+        if any(r[0] in unseen for r in rows):
+            title += "<br>" + NOT_IDENTIFIED
         item.setTitle(title, size="10pt")
 
     # ---- map -----------------------------------------------------------------------------------
@@ -557,6 +581,11 @@ class SensitivityView(View):
         self.map_plot.getPlotItem().setTitle(
             f"{self.output_box.currentText()}: {self.map_what.currentText()} at Z = {z[k]:g} mm",
             size="10pt")
+
+
+def _marked(eid: str, unseen: Collection[str]) -> str:
+    """An error's label, with * when the plan does not identify it."""
+    return error_label(eid) + (" *" if eid in unseen else "")
 
 
 def _fraction(value: object) -> str:

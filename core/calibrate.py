@@ -145,6 +145,7 @@ def calibrate(
             n=request.sensitivity_n,
             seed=0,
             map_step_mm=100.0,
+            not_identified=loop.base.identifiability.unidentifiable_ids,
             progress=sub(0.72, 0.85),
             cancel=cancel,
         )

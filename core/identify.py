@@ -174,12 +174,17 @@ class Identifiability:
     redundant_lines: tuple[str, ...]
     identified_ids: tuple[str, ...]  # errors fully determined by the plan
 
+    @property
+    def unidentifiable_ids(self) -> list[str]:
+        """The errors the plan leaves (partly) undetermined, sorted."""
+        return sorted({i for u in self.unidentifiable for i in u.ids})
+
     def to_json(self) -> dict[str, object]:
         return {
             "rank": self.rank,
             "unknowns": self.unknowns,
             "unidentifiable": [u.message for u in self.unidentifiable],
-            "unidentifiable_ids": sorted({i for u in self.unidentifiable for i in u.ids}),
+            "unidentifiable_ids": self.unidentifiable_ids,
             "redundant_lines": list(self.redundant_lines),
         }
 

@@ -27,8 +27,8 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Collection, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -633,6 +633,9 @@ class SensitivityResult:
     factors — and hold the mean over the repeats; ``*_std`` is the standard deviation of the
     single-repeat estimates (NaN with one repeat), so the standard error of the mean is
     std/√repeats. ``variance_um2`` (outputs, points) is the output variance.
+    ``not_identified``: the error factors the identification behind the analysis does not
+    identify (its plan cannot see them); they vary by the analysis' floor alone, so their indices
+    rank the floor, not the machine.
     """
 
     outputs: tuple[str, ...]
@@ -644,6 +647,7 @@ class SensitivityResult:
     st_std: FloatArray
     variance_um2: FloatArray
     settings: Mapping[str, object]
+    not_identified: tuple[str, ...] = ()
 
     def _output(self, output: str) -> int:
         if output not in self.outputs:
@@ -687,7 +691,8 @@ class SensitivityResult:
         """DESIGN.md report.json ``sensitivity``: {output: {"S1": {id: v}, "ST": {id: v}, ...}}.
 
         Keys are ISO error ids; workspace values for maps. Extra keys per output: ``S1_std``,
-        ``ST_std`` and, when positions were factors, ``positions`` with their S1 and ST.
+        ``ST_std``; when positions were factors, ``positions`` with their S1 and ST; when the
+        identification left errors unidentified, ``not_identified`` with their ids.
         """
         out: dict[str, dict[str, object]] = {}
         errors = [i for i in self.factor_ids if i in ERROR_IDS]
@@ -706,6 +711,8 @@ class SensitivityResult:
                     }
                     for kind in ("S1", "ST")
                 }
+            if self.not_identified:
+                entry["not_identified"] = list(self.not_identified)
             out[name] = entry
         return out
 
@@ -726,12 +733,13 @@ class SensitivityResult:
             "ST_std": listed(self.st_std),
             "variance_um2": listed(self.variance_um2),
             "settings": _json_safe(self.settings),
+            "not_identified": list(self.not_identified),
         }
 
     def to_tree(self) -> dict[str, object]:
         """Arrays and a JSON settings string, for the project's /sensitivity/<name> group."""
         positions = np.zeros((0, 3)) if self.positions_mm is None else self.positions_mm
-        return {
+        tree: dict[str, object] = {
             "outputs": list(self.outputs),
             "factors": list(self.factor_ids),
             "positions_mm": np.asarray(positions, dtype=float),
@@ -744,6 +752,9 @@ class SensitivityResult:
             "settings_json": json.dumps(_json_safe(self.settings), allow_nan=False),
             "report_json": json.dumps(self.to_report(), allow_nan=False),
         }
+        if self.not_identified:
+            tree["not_identified"] = list(self.not_identified)
+        return tree
 
     @classmethod
     def from_tree(cls, tree: Mapping[str, object]) -> SensitivityResult:
@@ -759,6 +770,7 @@ class SensitivityResult:
             np.asarray(tree["ST_std"], dtype=float),
             np.asarray(tree["variance_um2"], dtype=float),
             json.loads(str(tree["settings_json"])),
+            tuple(str(v) for v in tree.get("not_identified", ())),  # type: ignore[attr-defined]
         )
 
     @classmethod
@@ -780,6 +792,7 @@ class SensitivityResult:
             array("ST_std", shape),
             array("variance_um2", shape[:2]),
             dict(data.get("settings", {})),  # type: ignore[call-overload]
+            tuple(data.get("not_identified", ())),  # type: ignore[arg-type]
         )
 
 
@@ -1139,6 +1152,7 @@ def analyse_model(
     floor_um: float = 0.01,
     floor_urad: float = 0.1,
     tool_offset_mm: ArrayLike | None = None,
+    not_identified: Collection[str] = (),
     progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
 ) -> SensitivityResult:
@@ -1148,6 +1162,8 @@ def analyse_model(
     else X, Y, Z as design factors (uniform over the strokes; their indices then measure how much
     of the output's variation over the workspace comes from where the tool is). The errors vary
     by their identification uncertainty (``covariance``), at least ``floor_um`` / ``floor_urad``.
+    ``not_identified``: the errors the identification's plan cannot see (its identifiability's
+    ``unidentifiable_ids``), carried into the result so every ranking can mark them.
     """
     if map_step_mm is not None and position_mm is not None:
         raise SensitivityError("give either a map step or one position, not both")
@@ -1161,7 +1177,11 @@ def analyse_model(
     problem = problem_from_model(
         model, covariance, positions, spread, floor_um, floor_urad, tool_offset_mm
     )
-    return analyse(problem, output, n, m, seed, repeats, method, progress=progress, cancel=cancel)
+    result = analyse(
+        problem, output, n, m, seed, repeats, method, progress=progress, cancel=cancel
+    )
+    unseen = tuple(i for i in ERROR_IDS if i in set(not_identified))
+    return replace(result, not_identified=unseen) if unseen else result
 
 
 # --------------------------------------------------------------------------------------------

@@ -122,24 +122,23 @@ def run(args: argparse.Namespace) -> int:
             positions = workspace_grid(PAPER_MACHINE, args.map)
         problem = paper_problem(positions, tool)
         result = analyse(problem, outputs, args.n, args.m, args.seed, args.repeats, args.method)
-        unidentified: frozenset[str] = frozenset()
     else:
-        result, unidentified = _project_analysis(args, outputs, tool)
+        result = _project_analysis(args, outputs, tool)
     if args.json:
         document = _document(result)
         if args.project is not None:
-            document["not_identified"] = sorted(unidentified)
+            document["not_identified"] = sorted(result.not_identified)
         print(json.dumps(document, indent=1, allow_nan=False))
     else:
-        print(_text(result, unidentified))
+        print(_text(result))
     return 0
 
 
 def _project_analysis(
     args: argparse.Namespace, outputs: tuple[str, ...], tool: tuple[float, float, float] | None
-) -> tuple[SensitivityResult, frozenset[str]]:
-    """The analysis of the project's identification, stored in the project, and the errors that
-    identification does not identify."""
+) -> SensitivityResult:
+    """The analysis of the project's identification, stored in the project; it carries the errors
+    that identification does not identify."""
     if args.positions == "noise":
         # The preset branch refuses it in the problem; refuse here before any file is read.
         raise PositionNoiseError(NOISE_EXPLANATION)
@@ -160,7 +159,7 @@ def _analyse_and_store(
     args: argparse.Namespace,
     outputs: tuple[str, ...],
     tool: tuple[float, float, float] | None,
-) -> tuple[SensitivityResult, frozenset[str]]:
+) -> SensitivityResult:
     project = project_module.Project.open(args.project)
     names = list(project.results("identifications"))
     if not names:
@@ -179,6 +178,7 @@ def _analyse_and_store(
     model = project_module.error_model_from_tree(tree.get("model", tree), project.machine)
     covariance = tree.get("covariance")
     position = _triple(args.position, "--position") if args.position else None
+    identifiability = json.loads(str(tree.get("identifiability_json", "{}")))
     result = analyse_model(
         model,
         None if covariance is None else np.asarray(covariance, dtype=float),
@@ -191,11 +191,11 @@ def _analyse_and_store(
         repeats=args.repeats,
         method=args.method,
         tool_offset_mm=tool,
+        not_identified=identifiability.get("unidentifiable_ids", ()),
     )
     project.put_result("sensitivity", args.name, {**result.to_tree(), "identification": name})
     project.save()
-    identifiability = json.loads(str(tree.get("identifiability_json", "{}")))
-    return result, frozenset(identifiability.get("unidentifiable_ids", ()))
+    return result
 
 
 def _outputs(values: list[str] | None) -> tuple[str, ...]:
@@ -255,9 +255,10 @@ def _label(factor: str) -> str:
     return f"{factor} ({'−' if info.paper_sign < 0 else ''}{info.paper})"
 
 
-def _text(result: SensitivityResult, unidentified: frozenset[str] = frozenset()) -> str:
+def _text(result: SensitivityResult) -> str:
     """The six largest indices per output; an error the analysed identification does not
-    identify (``unidentified``) is marked, with what its indices mean."""
+    identify (``result.not_identified``) is marked, with what its indices mean."""
+    unidentified = set(result.not_identified)
     settings = result.settings
     problem = settings.get("problem", {})
     assert isinstance(problem, dict)

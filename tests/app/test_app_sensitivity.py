@@ -1,9 +1,11 @@
 """The sensitivity view: ranking, the factor table re-ranks the bars, a responsive long map."""
 
+import json
 import time
 
 import numpy as np
 from PySide6.QtCore import QTimer
+from volucal.core.errors import error_label
 from volucal.core.project import error_model_from_tree
 from volucal.core.sensitivity import analyse_model, workspace_grid
 
@@ -87,3 +89,32 @@ def test_a_map_slice_follows_the_slider(qtbot, window, wait_idle):
     view.slice.setValue(3)
     assert view.slice_label.text().startswith(f"Z = {z[3]:g} mm")
     np.testing.assert_allclose(view.image.image, values[:, :, 3])
+
+
+def test_errors_the_plan_cannot_see_are_marked_in_the_table_and_the_bars(qtbot, window,
+                                                                          wait_idle):
+    """The small project's nine lines leave EYX (among others) unidentified: the ranking F7 runs
+    varies it by the floor alone, and the table, the bars and the stored result say so."""
+    view = window.views["sensitivity"]
+    window.show_view("sensitivity")
+    view.n_box.setValue(200)
+    view.top_k.setValue(21)
+    tree = window.document.tree("identifications", "loop")
+    unseen = set(json.loads(str(tree["identifiability_json"]))["unidentifiable_ids"])
+    assert "EYX" in unseen and "EXX" not in unseen
+    actions = {a.shortcut().toString(): a for a in window.actions()}
+    actions["F7"].trigger()
+    wait_idle(view)
+
+    rows = {view.table.item(r, 0).data(0x0100): view.table.item(r, 0).text()
+            for r in range(view.table.rowCount())}
+    assert {eid for eid, text in rows.items() if text.endswith(" *")} == unseen
+    assert "not identified by this plan" in view.table_note.text()
+    assert view.record.not_identified == unseen
+    ticks = view.bars.getPlotItem().getAxis("left")._tickLevels[0]
+    assert {label for _, label in ticks if label.endswith(" *")} == {
+        f"{error_label(e)} *" for e in unseen}
+    assert "not identified by this plan" in view.bars.getPlotItem().titleLabel.text
+    # stored: the project's report block lists them for every output
+    stored = json.loads(str(window.document.tree("sensitivity", "main")["report_json"]))
+    assert all(set(stored[o]["not_identified"]) == unseen for o in stored)

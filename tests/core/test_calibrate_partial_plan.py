@@ -125,8 +125,17 @@ def test_a_ranking_of_errors_the_plan_does_not_identify_says_so(tmp_path, capsys
 
     plan = _x_alone(tmp_path)
     project = tmp_path / "p.h5"
-    assert main(["calibrate", str(plan), "--project", str(project), "--quiet"]) == 0
+    report = tmp_path / "report.json"
+    args = ["calibrate", str(plan), "--project", str(project), "--report", str(report)]
+    assert main([*args, "--quiet"]) == 0
     capsys.readouterr()
+    # report.json: every output's ranking lists the errors the plan does not identify
+    written = json.loads(report.read_text())
+    unseen = written["identifiability"]["unidentifiable_ids"]
+    assert {"EBX", "EXX", "EYY", "EA0Z"} <= set(unseen)
+    assert set(written["sensitivity"]) == {"Ex", "Ey", "Ez", "ET"}
+    assert all(sorted(block["not_identified"]) == unseen
+               for block in written["sensitivity"].values())
     # x_linear alone identifies no error by itself (EXX only with EBX): every one is marked
     args = ["sensitivity", str(project), "--output", "Ex", "--n", "300", "--repeats", "1"]
     assert main([*args, "--map", "200"]) == 0
@@ -136,7 +145,8 @@ def test_a_ranking_of_errors_the_plan_does_not_identify_says_so(tmp_path, capsys
     assert "* not identified by this plan: varied by the floor alone" in out
     assert main([*args, "--map", "200", "--json"]) == 0
     document = json.loads(capsys.readouterr().out)
-    assert {"EBX", "EXX", "EYY", "EA0Z"} <= set(document["not_identified"])
+    assert sorted(document["not_identified"]) == unseen
+    assert sorted(document["sensitivity"]["Ex"]["not_identified"]) == unseen
     section = next(
         s
         for s in build_report(ReportRequest(project)).sections

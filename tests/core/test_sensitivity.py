@@ -6,6 +6,7 @@ the paper's Table 2 for positions as design factors, SALib for the estimator, th
 numbers for eq. 19.
 """
 
+import dataclasses
 import math
 import warnings
 
@@ -204,6 +205,12 @@ def test_report_shape_is_keyed_by_iso_ids_and_round_trips():
     tree = S.SensitivityResult.from_tree(result.to_tree())
     np.testing.assert_array_equal(tree.st_std, result.st_std)
     assert tree.settings["n"] == 400 and tree.outputs == result.outputs
+    assert "not_identified" not in report["Ex"] and tree.not_identified == ()
+    # errors an identification leaves unseen are carried through every form
+    marked = dataclasses.replace(result, not_identified=("EYX", "EC0Y"))
+    assert marked.to_report()["ET"]["not_identified"] == ["EYX", "EC0Y"]
+    assert S.SensitivityResult.from_tree(marked.to_tree()).not_identified == ("EYX", "EC0Y")
+    assert S.SensitivityResult.from_dict(marked.to_dict()).not_identified == ("EYX", "EC0Y")
 
 
 def test_any_callable_output():
