@@ -19,11 +19,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .compensation.export_common import DEFAULT_MAX_CORRECTION_UM, ExportOptions
-from .compensation.source import unmoved_axes
 from .compensation.verify import RATE_FLOOR_UM, rate_text
 from .errors import ERROR_INFO, ErrorModel
 from .identify import Identification, UncertaintyBudget, parameters_report
 from .loop_source import LoopSource, measured_range, parameter_map
+from .measurement import Measurement
 from .progress import CancelToken, ProgressCallback, check, report
 from .residuals import (
     BOTH_WAYS,
@@ -174,15 +174,7 @@ def calibrate(
     report(progress, 0.93, "predicting the compensation")
     verification = exports[0].verification if exports else None
     result["compensation"] = compensation_report(source, tuple(files), verification)
-    unmoved = unmoved_axes(source)
-    if unmoved:
-        where = ", ".join(f"{axis} = {position:g} mm" for axis, position in unmoved.items())
-        result["warnings"] = [
-            *result.get("warnings", []),
-            f"no measured line moved {' or '.join(unmoved)} (every reading at {where}): no "
-            "error of their own travel is identified, their compensation tables correct none, "
-            "and no rate is predicted along them where the model has no error",
-        ]
+    result["warnings"] = [*result.get("warnings", []), *_held_axes_warnings(measurement)]
     if request.project_path is not None:
         report(progress, 0.96, "saving the project")
         save_project(
@@ -230,6 +222,31 @@ def identification_tree(identification: Identification) -> dict[str, Any]:
         "identifiability_json": json.dumps(identification.identifiability.to_json()),
         "parameters_json": json.dumps(parameters_report(identification)),
     }
+
+
+def _held_axes_warnings(measurement: Measurement) -> list[str]:
+    """What calibrating says of the axes no line moved: held at one position (a plan that
+    measures X alone) or at several (X lines at two heights of Y)."""
+    held = measurement.held_axes()
+    once = {axis: at[0] for axis, at in held.items() if len(at) == 1}
+    warnings = []
+    if once:
+        where = ", ".join(f"{axis} = {position:g} mm" for axis, position in once.items())
+        warnings.append(
+            f"no measured line moved {' or '.join(once)} (every reading at {where}): no "
+            "error of their own travel is identified, their compensation tables correct none, "
+            "and no rate is predicted along them where the model has no error"
+        )
+    for axis, at in held.items():
+        if len(at) > 1:
+            where = ", ".join(f"{position:g}" for position in at)
+            warnings.append(
+                f"no measured line moved {axis} (its lines held it at {axis} = {where} mm): no "
+                f"error of its own travel is identified; along {axis} the model and its tables "
+                "hold only what the lines measured at those positions, and nothing was "
+                "measured between them"
+            )
+    return warnings
 
 
 def save_project(

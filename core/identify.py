@@ -342,7 +342,7 @@ class _Subspace:
     def of(cls, system: LinearSystem) -> _Subspace:
         elimination, limit = eliminate(system)
         null = elimination.null_space(limit)
-        return cls(elimination.scale, null, system.size - null.dimensions)
+        return cls(elimination.scale, null.held_on_errors(), system.size - null.dimensions)
 
     def restrict(self, system: LinearSystem) -> ConstrainedSystem:
         """The least-squares problem of ``system`` restricted to the subspace."""

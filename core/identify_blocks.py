@@ -293,6 +293,18 @@ class NullSpace:
         q, _ = np.linalg.qr(basis)
         return np.asarray(q)
 
+    def held_on_errors(self) -> NullSpace:
+        """The same null space, held at zero on the global columns only: each vector's part on
+        the lines' own columns (offsets, slopes, a line's own effects) set to zero, so that a
+        constraint Zᵀx = 0 keeps what the plan cannot see out of the errors and leaves the lines'
+        own terms free to take what they can. (Held on whole vectors, the minimum norm over
+        errors and offsets together let a line's offset share itself with errors no line sees.)
+        The own null directions stay as they are."""
+        vectors = self.vectors.copy()
+        for block in self.lines:
+            vectors[block.columns] = 0.0
+        return NullSpace(self.size, vectors, self.own, self.lines)
+
     def rescaled(self, ratio: FloatArray) -> NullSpace:
         """The same constraint in other column scalings: a vector z (scaled by s0) constrains
         x = s0·x0 as z·x0 = 0; in a scaling s that reads (z·s/s0)·x_s = 0, so each row is

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .io.units import ANGLE_UNITS, DEVIATION_FACTOR
-from .machine import Machine
+from .machine import AXIS_INDEX, Machine
 from .userror import UserError
 
 FloatArray = NDArray[np.float64]
@@ -232,6 +232,15 @@ class Measurement:
         return min(
             line.data.start_time + float(np.nanmin(line.data.times_s)) for line in self.lines
         )
+
+    def held_axes(self) -> dict[str, tuple[float, ...]]:
+        """The axes no line moves (no line's direction has a component along them), each with
+        the positions (mm, increasing) its lines hold it at."""
+        held = {}
+        for axis, k in AXIS_INDEX.items():
+            if all(line.spec.direction[k] == 0.0 for line in self.lines):
+                held[axis] = tuple(sorted({round(line.spec.start_mm[k], 6) for line in self.lines}))
+        return held
 
     def line(self, name: str) -> Line:
         for line in self.lines:

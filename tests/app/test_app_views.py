@@ -395,7 +395,8 @@ def test_squareness_is_shown_as_numbers_with_units(qtbot, window):
     record = window.document.identification("loop")
     for row, eid in enumerate(("EC0Y", "EB0Z", "EA0Z")):
         value = float(record.parameters[eid]["value"][0])
-        assert view.squareness.item(row, 1).text() == f"{value:.2f} µrad"
+        # a squareness the plan does not see is held at zero: shown 0.00, not -0.00
+        assert view.squareness.item(row, 1).text() == f"{round(value, 2) + 0.0:.2f} µrad"
     window.set_units("angle", "arcsec")
     for row, eid in enumerate(("EC0Y", "EB0Z", "EA0Z")):
         value = float(record.parameters[eid]["value"][0])

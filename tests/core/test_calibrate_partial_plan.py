@@ -134,8 +134,9 @@ def test_a_ranking_of_errors_the_plan_does_not_identify_says_so(tmp_path, capsys
     unseen = written["identifiability"]["unidentifiable_ids"]
     assert {"EBX", "EXX", "EYY", "EA0Z"} <= set(unseen)
     assert set(written["sensitivity"]) == {"Ex", "Ey", "Ez", "ET"}
-    assert all(sorted(block["not_identified"]) == unseen
-               for block in written["sensitivity"].values())
+    assert all(
+        sorted(block["not_identified"]) == unseen for block in written["sensitivity"].values()
+    )
     # x_linear alone identifies no error by itself (EXX only with EBX): every one is marked
     args = ["sensitivity", str(project), "--output", "Ex", "--n", "300", "--repeats", "1"]
     assert main([*args, "--map", "200"]) == 0
@@ -157,4 +158,40 @@ def test_a_ranking_of_errors_the_plan_does_not_identify_says_so(tmp_path, capsys
     assert any(
         'marked "not identified" are not seen by this plan' in getattr(b, "text", "")
         for b in section.blocks
+    )
+
+
+def test_x_lines_at_two_heights_of_y_put_nothing_unmeasured_in_the_y_tables(
+    tmp_path, capsys
+) -> None:
+    """x_linear at Y = 0 and the same log again at Y = 200: the two heights measured the same,
+    so nothing may depend on Y. The plan cannot see Y's own errors; the identification holds
+    them at zero and the lines' offsets take the rest (half the X reversal, 2 µm, which the
+    offsets used to share with EXY, EBY and EC0Y and which then came out as a 1.7 µm Y → X
+    cross table). And calibrate says what the plan left unmeasured along Y."""
+    plan = _x_alone(tmp_path)
+    text = plan.read_text()
+    first = text[text.index("[[line]]") :]
+    far = first.replace('name = "x_linear"', 'name = "x_linear_far"')
+    plan.write_text(
+        text + "\n" + far.replace("start = [0.0, 0.0, 0.0]", "start = [0.0, 200.0, 0.0]")
+    )
+    report, out = tmp_path / "r.json", tmp_path / "out"
+    args = ["calibrate", str(plan), "--report", str(report), "--export", str(out)]
+    assert main([*args, "--format", "csv", "--no-sensitivity"]) == 0, capsys.readouterr().err
+    printed = capsys.readouterr().out
+    cross = _csv_rows(out / "csv" / "cross_axis_tables.csv")
+    along_y = np.asarray(cross["input_axis"]) == "Y"
+    assert along_y.sum() > 20
+    assert np.max(np.abs(cross["error_um"][along_y])) < 1e-3
+    written = json.loads(report.read_text())
+    held = (
+        "no measured line moved Y (its lines held it at Y = 0, 200 mm): no error of its own "
+        "travel is identified; along Y the model and its tables hold only what the lines "
+        "measured at those positions, and nothing was measured between them"
+    )
+    assert held in written["warnings"] and f"warning: {held}" in printed
+    assert any(
+        w.startswith("no measured line moved Z (every reading at Z = 0 mm)")
+        for w in written["warnings"]
     )

@@ -54,10 +54,22 @@ def _scaled_eigen(normal):  # type: ignore[no-untyped-def]
     return scale, values, vectors, limit
 
 
-def _dense_restricted(normal, rhs):  # type: ignore[no-untyped-def]
-    """The solution and (AᵀWA)⁺ restricted to the directions the scaled normal matrix sees."""
+def _dense_restricted(normal, rhs, own=()):  # type: ignore[no-untyped-def]
+    """The solution and (AᵀWA)⁺ restricted to a complement of what the scaled normal matrix does
+    not see: on the global columns, the unseen directions' parts are held at zero, the lines'
+    ``own`` columns (offsets, slopes) left free to take what they can; an unseen direction with
+    no global part (a line's own columns no reading tells apart) is held at zero."""
     scale, values, vectors, limit = _scaled_eigen(normal)
-    t = vectors[:, values > limit] * scale[:, None]
+    null = vectors[:, values <= limit]
+    is_own = np.zeros(len(normal), dtype=bool)
+    is_own[np.asarray(own, dtype=np.int64)] = True
+    _, singular, vt = np.linalg.svd(null[~is_own], full_matrices=True)
+    rank = int(np.sum(singular > 1e-9))
+    on_errors = null @ vt[:rank].T
+    on_errors[is_own] = 0.0
+    held = np.hstack([on_errors, null @ vt[rank:].T])
+    q, _ = np.linalg.qr(held, mode="complete")
+    t = q[:, held.shape[1] :] * scale[:, None]
     reduced = t.T @ normal @ t
     return t @ np.linalg.solve(reduced, t.T @ rhs), t @ np.linalg.inv(reduced) @ t.T
 
@@ -105,12 +117,13 @@ def measurement_line_mask(result, index: int):  # type: ignore[no-untyped-def]
 @pytest.mark.parametrize("layout", ["direct", "nine-line", "twelve-line"])
 def test_restricted_solution_and_inverse_equal_the_dense_eigen_solution(layout: str) -> None:
     """One linear solve at zero errors: the solution and (AᵀWA)⁺ on the identifiable subspace
-    (nine-line and twelve-line leave many directions unseen) equal the dense computation."""
+    (nine-line and twelve-line leave many directions unseen) equal the dense computation, with
+    what the plan cannot see held out of the errors (the lines' offsets and slopes take it)."""
     measurement = _measure(layout, seed=32)
     result = identify(measurement, IdentifyOptions(refine=False, redundancy=False))
     system = result.system
     a, normal, rhs = _dense_normal(system)
-    x, inverse = _dense_restricted(normal, rhs)
+    x, inverse = _dense_restricted(normal, rhs, np.concatenate(system.own_columns()))
     gauge = Gauge.for_model(result.model)
     assert _relative(result.model.parameters, gauge.matrix @ x[: gauge.size]) < 1e-7
     assert _relative(result.residual, system.y - a @ x) < 1e-7

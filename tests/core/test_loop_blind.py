@@ -1288,14 +1288,16 @@ def test_an_abbe_offset_that_grows_past_the_optics_reach_once_settled_is_not_kep
     # 0, 93) mm in the step's one solve and (−68, 0, 123) mm once offset and angles agree in
     # the final model, beyond the 100 mm a set-up can be off: it was kept, implausible in the
     # report. Judged settled, it is refused, and a surface is kept with the injected place
-    # among its named rivals
+    # among its named rivals. (Asked again once the surface is in, the offset reaches 157 mm in
+    # one solve: refused as it stands.)
     report, truth = _loop(48071)
     assert "abbe_offset" not in {e["kind"] for e in report["effects"]}
-    (row,) = [
+    row, *again = [
         s for s in report["loop"] if s["effect"]["label"] == "Abbe offset of line z_straight_y"
     ]
     assert row["verdict"] == "implausible"
     assert "once its lever arm and the angles agree" in row["reason"]
+    assert all(s["verdict"] == "implausible" for s in again)
     (kept,) = [e for e in report["effects"] if e["kind"] == "cross_axis"]
     places = {
         (e["axis"], tuple(sorted(e["parameters"]["depends_on"])))
