@@ -84,7 +84,7 @@ class SensitivitySetup:
     """What the sensitivity view runs: the problem's kind, its factors and EFAST settings.
 
     ``not_identified``: in identified mode, the errors the identification's plan cannot see;
-    they vary by the floor alone and every ranking marks them.
+    what they vary by was not measured, and every ranking marks them.
     """
 
     mode: str

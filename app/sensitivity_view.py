@@ -58,9 +58,9 @@ SPREAD_COLUMN = 3
 MEAN_COLUMN = 2
 DISTRIBUTION_COLUMN = 1
 STD_OUTPUT = "standard deviation of the output (µm)"
-NOT_IDENTIFIED = (f"* not identified by this plan: varied by the floor alone ({FLOOR_UM:g} µm, "
-                  f"{FLOOR_URAD:g} µrad), so its indices say what that floor would do, not what "
-                  "the machine has")
+NOT_IDENTIFIED = ("* not identified by this plan: what it varies by was not measured (the "
+                  f"floor of {FLOOR_UM:g} µm, {FLOOR_URAD:g} µrad, or its share of a combination "
+                  "the plan sees), so its indices say nothing of the machine")
 #: Where the output barely varies its indices are ratios of noise to almost nothing: not shown.
 QUIET_VARIANCE = 1e-6
 POSITIONS = (
@@ -503,7 +503,7 @@ class SensitivityView(View):
         elif record.is_map:
             title += " — workspace average of the map"
         if any(r[0] in unseen for r in rows):
-            title += "<br>" + NOT_IDENTIFIED
+            title += "<br>* not identified by this plan: its indices say nothing of the machine"
         item.setTitle(title, size="10pt")
 
     # ---- map -----------------------------------------------------------------------------------

@@ -933,7 +933,7 @@ def _sensitivity(results: _Results) -> Section:
             "independent phase draws."
         )
     ]
-    # an error the plan does not identify varies by the analysis' floor alone
+    # what an error the plan does not identify varies by was not measured
     unidentified = set((results.identifiability or {}).get("unidentifiable_ids", []))
     shown: set[str] = set()
     for output in ("Ex", "Ey", "Ez", "ET"):
@@ -984,10 +984,11 @@ def _sensitivity(results: _Results) -> Section:
         blocks.insert(
             1,
             Paragraph(
-                'Errors marked "not identified" are not seen by this plan: they have no '
-                "identification uncertainty and vary by the analysis' floor alone (0.01 µm, "
-                "0.1 µrad), so their indices say what that floor would do, not what the machine "
-                "has. Read the ranking among the identified errors.",
+                'Errors marked "not identified" are not seen by this plan, or only in a '
+                "combination with others: what they vary by was not measured (the analysis' "
+                "floor of 0.01 µm and 0.1 µrad, or their share of the combination), so their "
+                "indices say nothing of the machine. Read the ranking among the identified "
+                "errors.",
                 "note",
             ),
         )

@@ -634,8 +634,9 @@ class SensitivityResult:
     single-repeat estimates (NaN with one repeat), so the standard error of the mean is
     std/√repeats. ``variance_um2`` (outputs, points) is the output variance.
     ``not_identified``: the error factors the identification behind the analysis does not
-    identify (its plan cannot see them); they vary by the analysis' floor alone, so their indices
-    rank the floor, not the machine.
+    identify (its plan sees them not at all, or only in a combination); what they vary by (the
+    analysis' floor, or their share of the combination) was not measured, so their indices say
+    nothing of the machine.
     """
 
     outputs: tuple[str, ...]
@@ -1177,9 +1178,7 @@ def analyse_model(
     problem = problem_from_model(
         model, covariance, positions, spread, floor_um, floor_urad, tool_offset_mm
     )
-    result = analyse(
-        problem, output, n, m, seed, repeats, method, progress=progress, cancel=cancel
-    )
+    result = analyse(problem, output, n, m, seed, repeats, method, progress=progress, cancel=cancel)
     unseen = tuple(i for i in ERROR_IDS if i in set(not_identified))
     return replace(result, not_identified=unseen) if unseen else result
 

@@ -287,7 +287,8 @@ def _text(result: SensitivityResult) -> str:
     if listed & unidentified:
         lines.append("")
         lines.append(
-            "* not identified by this plan: varied by the floor alone (0.01 µm, 0.1 µrad), so "
-            "its indices say what that floor would do, not what the machine has"
+            "* not identified by this plan: what it varies by was not measured (the floor of "
+            "0.01 µm, 0.1 µrad, or its share of a combination the plan sees), so its indices say "
+            "nothing of the machine"
         )
     return "\n".join(lines)

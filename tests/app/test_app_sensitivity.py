@@ -94,7 +94,7 @@ def test_a_map_slice_follows_the_slider(qtbot, window, wait_idle):
 def test_errors_the_plan_cannot_see_are_marked_in_the_table_and_the_bars(qtbot, window,
                                                                           wait_idle):
     """The small project's nine lines leave EYX (among others) unidentified: the ranking F7 runs
-    varies it by the floor alone, and the table, the bars and the stored result say so."""
+    varies it by what was not measured, and the table, the bars and the stored result say so."""
     view = window.views["sensitivity"]
     window.show_view("sensitivity")
     view.n_box.setValue(200)
@@ -114,7 +114,8 @@ def test_errors_the_plan_cannot_see_are_marked_in_the_table_and_the_bars(qtbot, 
     ticks = view.bars.getPlotItem().getAxis("left")._tickLevels[0]
     assert {label for _, label in ticks if label.endswith(" *")} == {
         f"{error_label(e)} *" for e in unseen}
-    assert "not identified by this plan" in view.bars.getPlotItem().titleLabel.text
+    assert "* not identified by this plan: its indices say nothing of the machine" in (
+        view.bars.getPlotItem().titleLabel.text)
     # stored: the project's report block lists them for every output
     stored = json.loads(str(window.document.tree("sensitivity", "main")["report_json"]))
     assert all(set(stored[o]["not_identified"]) == unseen for o in stored)
