@@ -274,8 +274,8 @@ class SensitivityRecord:
 
     @property
     def not_identified(self) -> frozenset[str]:
-        """The errors the analysed identification does not identify: they varied by the floor
-        alone, and every ranking of this result marks them."""
+        """The errors the analysed identification does not (fully) identify, as stored with the
+        result: what they varied by was in part not measured, and every ranking marks them."""
         ids: set[str] = set()
         for entry in self.indices.values():
             ids.update(entry.get("not_identified", ()))  # type: ignore[arg-type]

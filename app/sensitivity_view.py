@@ -58,9 +58,9 @@ SPREAD_COLUMN = 3
 MEAN_COLUMN = 2
 DISTRIBUTION_COLUMN = 1
 STD_OUTPUT = "standard deviation of the output (µm)"
-NOT_IDENTIFIED = ("* not identified by this plan: what it varies by was not measured (the "
-                  f"floor of {FLOOR_UM:g} µm, {FLOOR_URAD:g} µrad, or its share of a combination "
-                  "the plan sees), so its indices say nothing of the machine")
+NOT_IDENTIFIED = ("* not fully identified by this plan: what it varies by was not all measured "
+                  f"(the floor of {FLOOR_UM:g} µm, {FLOOR_URAD:g} µrad, or its share of a "
+                  "combination the plan sees), so its indices are not the machine's alone")
 #: Where the output barely varies its indices are ratios of noise to almost nothing: not shown.
 QUIET_VARIANCE = 1e-6
 POSITIONS = (
@@ -226,6 +226,17 @@ class SensitivityView(View):
         tree = self.document.tree("identifications", name)
         covariance = tree.get("covariance")
         return model, None if covariance is None else np.asarray(covariance, dtype=float)
+
+    def _record_unseen(self, record: SensitivityRecord) -> frozenset[str]:
+        """What the identification behind a result does not fully identify: as stored with the
+        result or, for a result stored before it was kept, as that identification says."""
+        if record.not_identified:
+            return record.not_identified
+        setup = record.setup
+        if setup is not None and setup.mode == "identified" and \
+                setup.identification in self.document.results("identifications"):
+            return frozenset(self._unidentified(setup.identification))
+        return frozenset()
 
     def _unidentified(self, name: str) -> list[str]:
         """The errors identification ``name``'s plan cannot see."""
@@ -489,7 +500,7 @@ class SensitivityView(View):
                                      brush=plots.brush(plots.FORWARD, 200), name="S1 first order"))
         item.addItem(pg.BarGraphItem(x0=0.0, y=y + 0.19, height=0.36, width=st,
                                      brush=plots.brush(plots.color(1), 200), name="ST total"))
-        unseen = record.not_identified
+        unseen = self._record_unseen(record)
         plots.category_ticks(item.getAxis("left"), [_marked(r[0], unseen) for r in rows])
         values = np.concatenate([s1, st, [0.0]])
         low, high = float(np.min(values)), max(float(np.max(values)), 1e-3)
@@ -503,7 +514,8 @@ class SensitivityView(View):
         elif record.is_map:
             title += " — workspace average of the map"
         if any(r[0] in unseen for r in rows):
-            title += "<br>* not identified by this plan: its indices say nothing of the machine"
+            title += ("<br>* not fully identified by this plan: its indices are not the "
+                      "machine's alone")
         item.setTitle(title, size="10pt")
 
     # ---- map -----------------------------------------------------------------------------------
@@ -515,8 +527,10 @@ class SensitivityView(View):
         self.map_what.clear()
         if record is not None and record.result is not None:
             self.map_what.addItem(STD_OUTPUT)
+            unseen = self._record_unseen(record)
             for eid in record.result.factor_ids:
-                self.map_what.addItem(f"{self.sort_box.currentText()} of {error_label(eid)}", eid)
+                self.map_what.addItem(
+                    f"{self.sort_box.currentText()} of {_marked(eid, unseen)}", eid)
             found = self.map_what.findText(current)
             if found < 0 and self.record is not None and self.ranking():
                 found = self.map_what.findData(self.ranking()[0])

@@ -192,8 +192,9 @@ def _cross_validate_blocks(
     sees (which would leave local basis functions undetermined), while a structure spanning a
     block still has to be predicted from its neighbours and the other lines.
 
-    Each fold is the minimum-norm (column-scaled) least-squares fit of the readings it keeps,
-    solved line by line like identification.
+    Each fold is the least-squares fit of the readings it keeps, solved line by line like
+    identification, holding what the fit holds at zero (its unseen directions, on the errors)
+    and, at minimum norm (column-scaled), whatever else the fold alone cannot see.
     """
     residual = np.full(len(readings), np.nan)
     fold_of = np.zeros(len(readings), dtype=int)

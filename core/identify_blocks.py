@@ -241,11 +241,12 @@ class Elimination:
         )
 
     def null_space_beside(self, limit: float, held: FloatArray) -> FloatArray:
-        """The directions (scaled, P × d) to hold at zero when those of ``held`` (P × k, scaled,
-        e.g. another system's null vectors, linearly independent on the global columns) are
-        held at zero whether this system sees them or not: ``held``, then the null vectors of
-        the reduced system on the complement of held's global part, completed on the lines' own
-        columns."""
+        """The constraint vectors (scaled, P × d) to hold at zero when those of ``held`` (P × k,
+        scaled, e.g. the fit's, linearly independent on the global columns) are held at zero
+        whether this system sees them or not: ``held``, then the null vectors of the reduced
+        system on the complement of held's global part, completed on the lines' own columns (a
+        minimum norm over errors and the lines' own terms together, for what this system alone
+        cannot see)."""
         held_g = held[self.glob]
         if held_g.shape[1] == 0:
             return self.null_space(limit).vectors

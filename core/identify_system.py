@@ -80,8 +80,9 @@ class LinearSystem:
     reading_bounds: NDArray[np.int64]
     #: the effects' separable directions (see :func:`separable_reduction`), if restricted
     reduction: Reduction | None = None
-    #: once the system is fitted, its column scaling and the directions (scaled, P × d, in the
-    #: reduced unknowns) the fit holds at zero: what the plan leaves unseen at zero errors. A
+    #: once the system is fitted, its column scaling and the constraint vectors (scaled, P × d,
+    #: in the reduced unknowns) the fit holds at zero: what the plan leaves unseen at zero
+    #: errors, on the global columns only (:meth:`NullSpace.held_on_errors`). A
     #: linearisation about identified errors may see a little of them through second-order
     #: couplings, which the fit does not use; cross-validation must not use them either
     unseen: tuple[FloatArray, FloatArray] | None = None

@@ -235,11 +235,14 @@ class Measurement:
 
     def held_axes(self) -> dict[str, tuple[float, ...]]:
         """The axes no line moves (no line's direction has a component along them), each with
-        the positions (mm, increasing) its lines hold it at."""
+        the positions (mm, increasing) its lines hold it at. An axis held at one position is
+        one whose readings all lie there (``compensation.source.unmoved_axes`` of the
+        identified machine)."""
         held = {}
         for axis, k in AXIS_INDEX.items():
             if all(line.spec.direction[k] == 0.0 for line in self.lines):
-                held[axis] = tuple(sorted({round(line.spec.start_mm[k], 6) for line in self.lines}))
+                at = {round(line.spec.start_mm[k], 6) + 0.0 for line in self.lines}
+                held[axis] = tuple(sorted(at))
         return held
 
     def line(self, name: str) -> Line:

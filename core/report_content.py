@@ -984,11 +984,11 @@ def _sensitivity(results: _Results) -> Section:
         blocks.insert(
             1,
             Paragraph(
-                'Errors marked "not identified" are not seen by this plan, or only in a '
-                "combination with others: what they vary by was not measured (the analysis' "
-                "floor of 0.01 µm and 0.1 µrad, or their share of the combination), so their "
-                "indices say nothing of the machine. Read the ranking among the identified "
-                "errors.",
+                'Errors marked "not identified" are not seen by this plan, or only in part or in '
+                "a combination with others: what they vary by was not all measured (the "
+                "analysis' floor of 0.01 µm and 0.1 µrad, or their share of the combination), so "
+                "their indices are not the machine's alone. Read the ranking among the "
+                "identified errors.",
                 "note",
             ),
         )

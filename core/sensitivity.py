@@ -634,9 +634,9 @@ class SensitivityResult:
     single-repeat estimates (NaN with one repeat), so the standard error of the mean is
     std/√repeats. ``variance_um2`` (outputs, points) is the output variance.
     ``not_identified``: the error factors the identification behind the analysis does not
-    identify (its plan sees them not at all, or only in a combination); what they vary by (the
-    analysis' floor, or their share of the combination) was not measured, so their indices say
-    nothing of the machine.
+    fully identify (its plan sees them not at all, in part, or only in a combination); what they
+    vary by (the analysis' floor, or their share of the combination) was not all measured, so
+    their indices are not the machine's alone.
     """
 
     outputs: tuple[str, ...]

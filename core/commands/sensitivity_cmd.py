@@ -287,8 +287,8 @@ def _text(result: SensitivityResult) -> str:
     if listed & unidentified:
         lines.append("")
         lines.append(
-            "* not identified by this plan: what it varies by was not measured (the floor of "
-            "0.01 µm, 0.1 µrad, or its share of a combination the plan sees), so its indices say "
-            "nothing of the machine"
+            "* not fully identified by this plan: what it varies by was not all measured (the "
+            "floor of 0.01 µm, 0.1 µrad, or its share of a combination the plan sees), so its "
+            "indices are not the machine's alone"
         )
     return "\n".join(lines)

@@ -204,6 +204,8 @@ def test_effects_reduced_to_their_separable_directions_as_the_dense_schur_comple
     assert widths == [1, 2, 1, 0]
     # and the fit in the reduced unknowns equals the dense one
     r = reduction.matrix
+    _, values, _, limit = _scaled_eigen(r.T @ normal @ r)
+    assert np.all(values > limit)  # the full plan sees everything: no gauge to choose
     x, inverse = _dense_restricted(r.T @ normal @ r, r.T @ rhs)
     assert _relative(result.residual, system.y - system.design_rows() @ (r @ x)) < 1e-7
     assert _relative(result.normal_inverse, r @ inverse @ r.T) < 1e-7
@@ -228,7 +230,7 @@ def test_an_effect_reaching_other_lines_stays_global() -> None:
     system = result.system.reduced()
     assert all(c.size <= 2 for c in system.own_columns())  # offsets and slopes only
     a, normal, rhs = _dense_normal(system)
-    x, _ = _dense_restricted(normal, rhs)
+    x, _ = _dense_restricted(normal, rhs, np.concatenate(system.own_columns()))
     assert _relative(result.residual, system.y - a @ x) < 1e-7
 
 
