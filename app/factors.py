@@ -131,8 +131,8 @@ class SensitivitySetup:
             FactorSetting(eid, "normal", means[eid], sds[eid], ERROR_INFO[eid].unit)
             for eid in ERROR_IDS
         )
-        unseen = tuple(eid for eid in ERROR_IDS if eid in set(not_identified))
-        return cls("identified", factors, n, seed, OUTPUT_NAMES, identification, unseen)
+        return cls("identified", factors, n, seed, OUTPUT_NAMES, identification,
+                   tuple(not_identified))
 
     @classmethod
     def paper_table2(cls, n: int = 1400, seed: int = 0) -> SensitivitySetup:

@@ -9,7 +9,6 @@ shows a slice at a chosen Z as a heat map.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Collection
 from dataclasses import replace
@@ -33,7 +32,8 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 from volucal.core.errors import ERROR_INFO, error_label
-from volucal.core.sensitivity import OUTPUT_NAMES, SensitivityResult
+from volucal.core.result_trees import unidentified_ids
+from volucal.core.sensitivity import OUTPUT_NAMES, SensitivityResult, not_identified_note
 from volucal.core.userror import UserError
 
 from . import plots
@@ -58,9 +58,7 @@ SPREAD_COLUMN = 3
 MEAN_COLUMN = 2
 DISTRIBUTION_COLUMN = 1
 STD_OUTPUT = "standard deviation of the output (µm)"
-NOT_IDENTIFIED = ("* not fully identified by this plan: what it varies by was not all measured "
-                  f"(the floor of {FLOOR_UM:g} µm, {FLOOR_URAD:g} µrad, or its share of a "
-                  "combination the plan sees), so its indices are not the machine's alone")
+NOT_IDENTIFIED = not_identified_note(FLOOR_UM, FLOOR_URAD)
 #: Where the output barely varies its indices are ratios of noise to almost nothing: not shown.
 QUIET_VARIANCE = 1e-6
 POSITIONS = (
@@ -239,10 +237,8 @@ class SensitivityView(View):
         return frozenset()
 
     def _unidentified(self, name: str) -> list[str]:
-        """The errors identification ``name``'s plan cannot see."""
-        tree = self.document.tree("identifications", name)
-        identifiability = json.loads(str(tree.get("identifiability_json", "{}")))
-        return list(identifiability.get("unidentifiable_ids", ()))
+        """The errors identification ``name``'s plan does not fully identify."""
+        return unidentified_ids(self.document.tree("identifications", name))
 
     def set_document(self, document: ProjectDocument) -> None:
         """Another project: nothing of this one's problem or results may stay."""

@@ -299,6 +299,13 @@ def identification_result_tree(
     return tree
 
 
+def unidentified_ids(tree: Mapping[str, Any]) -> list[str]:
+    """The errors a stored identification's plan does not fully identify (its
+    ``identifiability_json``; none for a tree without one)."""
+    identifiability = json.loads(str(tree.get("identifiability_json", "{}")))
+    return list(identifiability.get("unidentifiable_ids", ()))
+
+
 def effect_entries(identification: Identification) -> list[dict[str, Any]]:
     out = []
     for effect, values, cov in zip(

@@ -625,6 +625,15 @@ def _json_safe(value: object) -> object:
     return value
 
 
+def not_identified_note(floor_um: float = 0.01, floor_urad: float = 0.1) -> str:
+    """What the * beside a ranked error the plan does not fully identify means."""
+    return (
+        "* not fully identified by this plan: what it varies by was not all measured (the floor "
+        f"of {floor_um:g} µm, {floor_urad:g} µrad, or its share of a combination the plan sees), "
+        "so its indices are not the machine's alone"
+    )
+
+
 @dataclass(frozen=True, eq=False)
 class SensitivityResult:
     """EFAST indices of every output at every analysed position.
@@ -1179,8 +1188,7 @@ def analyse_model(
         model, covariance, positions, spread, floor_um, floor_urad, tool_offset_mm
     )
     result = analyse(problem, output, n, m, seed, repeats, method, progress=progress, cancel=cancel)
-    unseen = tuple(i for i in ERROR_IDS if i in set(not_identified))
-    return replace(result, not_identified=unseen) if unseen else result
+    return replace(result, not_identified=tuple(sorted(set(not_identified))))
 
 
 # --------------------------------------------------------------------------------------------

@@ -29,6 +29,7 @@ from ..sensitivity import (
     SensitivityResult,
     analyse,
     analyse_model,
+    not_identified_note,
     paper_problem,
     workspace_grid,
 )
@@ -178,7 +179,8 @@ def _analyse_and_store(
     model = project_module.error_model_from_tree(tree.get("model", tree), project.machine)
     covariance = tree.get("covariance")
     position = _triple(args.position, "--position") if args.position else None
-    identifiability = json.loads(str(tree.get("identifiability_json", "{}")))
+    from ..result_trees import unidentified_ids
+
     result = analyse_model(
         model,
         None if covariance is None else np.asarray(covariance, dtype=float),
@@ -191,7 +193,7 @@ def _analyse_and_store(
         repeats=args.repeats,
         method=args.method,
         tool_offset_mm=tool,
-        not_identified=identifiability.get("unidentifiable_ids", ()),
+        not_identified=unidentified_ids(tree),
     )
     project.put_result("sensitivity", args.name, {**result.to_tree(), "identification": name})
     project.save()
@@ -286,9 +288,5 @@ def _text(result: SensitivityResult) -> str:
             listed.add(factor)
     if listed & unidentified:
         lines.append("")
-        lines.append(
-            "* not fully identified by this plan: what it varies by was not all measured (the "
-            "floor of 0.01 µm, 0.1 µrad, or its share of a combination the plan sees), so its "
-            "indices are not the machine's alone"
-        )
+        lines.append(not_identified_note())
     return "\n".join(lines)
