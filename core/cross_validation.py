@@ -193,8 +193,9 @@ def _cross_validate_blocks(
     block still has to be predicted from its neighbours and the other lines.
 
     Each fold is the least-squares fit of the readings it keeps, solved line by line like
-    identification, holding what the fit holds at zero (its unseen directions, on the errors)
-    and, at minimum norm (column-scaled), whatever else the fold alone cannot see.
+    identification, holding at zero on the errors what the fit holds at zero (its unseen
+    directions) and whatever else the fold alone cannot see, each line's own terms free to take
+    what they can (:meth:`Elimination.null_space_beside`).
     """
     residual = np.full(len(readings), np.nan)
     fold_of = np.zeros(len(readings), dtype=int)

@@ -244,16 +244,18 @@ class Elimination:
         """The constraint vectors (scaled, P × d) to hold at zero when those of ``held`` (P × k,
         scaled, e.g. the fit's, linearly independent on the global columns) are held at zero
         whether this system sees them or not: ``held``, then the null vectors of the reduced
-        system on the complement of held's global part, completed on the lines' own columns (a
-        minimum norm over errors and the lines' own terms together, for what this system alone
-        cannot see)."""
+        system on the complement of held's global part, held on the global columns only (as
+        :meth:`NullSpace.held_on_errors`: what this system alone cannot see stays out of the
+        errors, and the lines' own terms take what they can)."""
         held_g = held[self.glob]
         if held_g.shape[1] == 0:
-            return self.null_space(limit).vectors
+            return self.null_space(limit).held_on_errors().vectors
         q, _ = np.linalg.qr(held_g, mode="complete")
         free = q[:, held_g.shape[1] :]
         values, vectors = np.linalg.eigh(free.T @ self.reduced @ free)
-        return np.hstack([held, self._completed(free @ vectors[:, values <= limit])])
+        beside = np.zeros((self.size, int(np.count_nonzero(values <= limit))))
+        beside[self.glob] = free @ vectors[:, values <= limit]
+        return np.hstack([held, beside])
 
     def _completed(self, null_g: FloatArray) -> FloatArray:
         """Directions of the reduced system (g × d) completed on the lines' own columns

@@ -139,3 +139,71 @@ def _held_out_and_fitted(fit, redundant) -> tuple[float, float]:  # type: ignore
         float(np.sum(weights * cv.residual[held] ** 2)),
         float(np.sum(weights * fit.residual[held] ** 2)),
     )
+
+
+def test_a_held_out_prediction_does_not_depend_on_a_line_s_laser_zero() -> None:
+    # the generator of tests/blind (twelve-line plan, 0.058 µm noise, a 1 µm bump that only
+    # diag_xy_pp shows) with the loop's first candidate there, a free bump of X in Y at 316 mm:
+    # one fold holds out the block of diag_xy_pp where the bump is and cannot see two of its
+    # directions beside the fit's unseen ones. Each fold holds what it cannot see out of the
+    # errors, as the fit does, and every line's offset is free: a laser zeroed elsewhere (a
+    # constant added to a line's readings) moves that line's offset and no prediction
+    import tempfile
+    from dataclasses import replace
+
+    from volucal.core.effects import LocalDefect
+    from volucal.core.io.plan import import_plan, load_plan
+
+    from tests.blind.scenarios import write_scenario
+
+    with tempfile.TemporaryDirectory(prefix="volucal-blind-") as tmp:
+        plan, _ = write_scenario(53046, tmp)
+        measurement = import_plan(load_plan(plan)).measurement
+    readings = flatten(measurement)
+    options = IdentifyOptions()
+    base = identify(measurement, options, readings=readings)
+    spacing = float(np.diff(base.model.functions["EYX"].basis.breakpoints_mm).mean())
+    bump = LocalDefect("X", "Y", 315.52, 36.69, "free", measurement.machine, spacing)
+
+    def held_out(values: np.ndarray) -> np.ndarray:
+        shifted = replace(readings, value=values)
+        fit = identify(
+            measurement,
+            replace(options, redundancy=False, max_iterations=1),
+            effects=(bump,),
+            readings=shifted,
+            initial=base.model,
+        )
+        cv = cross_validate(fit.system, shifted, base.identifiability.redundant_lines)
+        assert cv.method == "held-out blocks of targets"
+        return cv.residual
+
+    before = held_out(readings.value)
+    names = readings.line_names
+    zeros = {names.index("diag_xy_pp"): 5.0, names.index("x_lin_1"): -3.0}
+    moved = readings.value + sum(
+        np.where(readings.line == line, shift, 0.0) for line, shift in zeros.items()
+    )
+    after = held_out(moved)
+    assert np.array_equal(np.isnan(before), np.isnan(after))
+    assert np.nanmax(np.abs(after - before)) < 1e-6
+
+
+@pytest.mark.parametrize("layout", ["nine-line", "twelve-line"])
+def test_held_out_predictions_do_not_depend_on_what_the_plan_leaves_unseen(layout: str) -> None:
+    # nine-line and twelve-line leave directions of the 21 errors unseen; a fold's prediction is
+    # the same whether it holds the fit's unseen directions (after a fit) or finds them itself:
+    # what no reading sees moves no prediction, only how the fit splits it
+    truth = sim.random_truth(seed=32)
+    machine = sim.VirtualMachine(truth, (), seed=32)
+    measurement = machine.measure(plans.layout(layout, truth.machine, 12.0))
+    fit = identify(measurement, IdentifyOptions(refine=False))
+    assert fit.identifiability.unidentifiable_ids
+    redundant = fit.identifiability.redundant_lines
+    after_fit = cross_validate(fit.system, fit.readings, redundant)
+    assert after_fit.method == "held-out blocks of targets"
+    fit.system.unseen = None
+    on_its_own = cross_validate(fit.system, fit.readings, redundant)
+    held = np.isfinite(after_fit.residual)
+    assert np.array_equal(held, np.isfinite(on_its_own.residual))
+    assert np.max(np.abs(after_fit.residual[held] - on_its_own.residual[held])) < 1e-9
