@@ -28,6 +28,7 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
     QWidget,
 )
+from volucal.core.measurement import target_positions
 from volucal.core.project import Project
 from volucal.core.remeasurement import KEYS, Comparison, LinePair, compare
 from volucal.core.userror import UserError
@@ -197,9 +198,13 @@ class ComparisonView(View):
         symbol = self.units.symbol(unit)
         item.setTitle(f"{name}: bidirectional mean x̄ ± 2s before and after", size="10pt")
         item.setLabel("left", f"deviation ({symbol})")
-        for which, result, colour in (("before", pair.before, BEFORE),
-                                      ("after", pair.after, AFTER)):
-            x = result.targets_mm
+        lines = self.document.project.lines
+        for which, result, colour, line in (("before", pair.before, BEFORE, pair.name),
+                                            ("after", pair.after, AFTER, pair.after_name)):
+            spec = lines[line].spec if line in lines else None
+            positions = target_positions(result.targets_mm, spec)
+            item.setLabel("bottom", positions.label.replace(" mm", " (mm)"))
+            x = positions.values_mm
             s = np.fmax(result.s_up, result.s_down)
             mean = self.units.convert(result.mean, unit)
             spread = self.units.convert(2.0 * s, unit)

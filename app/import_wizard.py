@@ -56,7 +56,7 @@ from volucal.core.io.plan import (
     write_plan,
 )
 from volucal.core.machine import AXES, Machine, MachineError
-from volucal.core.measurement import LineSpec, Plan, PlanError
+from volucal.core.measurement import LineSpec, Plan, PlanError, target_positions
 from volucal.core.progress import CancelToken, ProgressCallback, check, report
 from volucal.core.userror import UserError
 
@@ -410,9 +410,12 @@ class PreviewPage(QWizardPage):
         unit = plots.unit_label(item.line.raw_unit)
         plot.setTitle(f"{item.path.name}: deviations as in the file", size="10pt")
         plot.setLabel("left", f"deviation ({unit})")
+        # where the file puts its targets: the plan's start is not yet this line's
+        positions = target_positions(data.targets_mm, origin_mm=data.origin_mm)
+        plot.setLabel("bottom", positions.label.replace(" mm", " (mm)"))
         for run in range(data.runs):
             colour = plots.FORWARD if data.run_direction[run] > 0 else plots.BACKWARD
-            plot.addItem(pg.PlotDataItem(data.targets_mm, data.deviations[run],
+            plot.addItem(pg.PlotDataItem(positions.values_mm, data.deviations[run],
                                          pen=plots.pen(colour, 1.0)))
         lines = [f"<b>{item.path.name}</b>: {item.line.format}, {item.line.readings} readings"]
         lines += [f"note: {n}" for n in item.line.notes]

@@ -31,7 +31,7 @@ from PySide6.QtWidgets import (
 )
 from volucal.core.conformance import CONFORMS
 from volucal.core.iso230_2 import Iso230Result, evaluate
-from volucal.core.measurement import Line, LineData
+from volucal.core.measurement import Line, LineData, TargetPositions, target_positions
 from volucal.core.tolerances import ToleranceCheck, Tolerances, check_line
 
 from . import jobs, plots
@@ -192,9 +192,10 @@ class MeasurementView(View):
             self.checks = check_line(Line(stored.spec, data),
                                      Tolerances.of_project(self.document.project),
                                      jobs.budget_of(self.document.project), self.result)
-        self._plot_runs(data, self.result, unit, stored.spec.quantity)
+        positions = target_positions(data.targets_mm, stored.spec)
+        self._plot_runs(data, self.result, unit, stored.spec.quantity, positions)
         self._fill_figures(self.result, unit)
-        self._fill_targets(self.result, unit)
+        self._fill_targets(self.result, unit, positions)
         self._fill_info(name)
         self._plot_environment(data)
 
@@ -210,13 +211,15 @@ class MeasurementView(View):
             return self.units.text(value, unit)
         return "—" if not math.isfinite(value) else f"{value:.4g} {plots.unit_label(unit)}"
 
-    def _plot_runs(self, data: LineData, result: Iso230Result, unit: str, quantity: str) -> None:
+    def _plot_runs(self, data: LineData, result: Iso230Result, unit: str, quantity: str,
+                   positions: TargetPositions) -> None:
         item = self.plot.getPlotItem()
         what = {"linear": "positioning deviation", "straightness": "straightness deviation",
                 "angular": "angular deviation"}[quantity]
         item.setTitle(f"{what} — {self.line_box.currentText()}", size="10pt")
         item.setLabel("left", f"deviation ({self.shown_unit(unit)})")
-        x = data.targets_mm
+        item.setLabel("bottom", positions.label.replace(" mm", " (mm)"))
+        x = positions.values_mm
         up = result.mean_up + 2 * result.s_up
         down = result.mean_down + 2 * result.s_down
         high = np.fmax(up, down)
@@ -276,14 +279,14 @@ class MeasurementView(View):
             self.verdict.setText("No tolerance for this line: set the limits per axis in "
                                  "Edit ▸ Tolerances…" if result.unit == "um" else "")
 
-    def _fill_targets(self, result: Iso230Result, unit: str) -> None:
+    def _fill_targets(self, result: Iso230Result, unit: str, positions: TargetPositions) -> None:
         columns = (result.mean_up, result.mean_down, result.mean, result.s_up, result.s_down,
                    result.reversal, result.repeatability)
         symbol = self.shown_unit(unit)
         self.targets.setHorizontalHeaderLabels(
-            [TARGET_COLUMNS[0]] + [f"{name} {symbol}" for name in TARGET_COLUMNS[1:]])
+            [positions.label] + [f"{name} {symbol}" for name in TARGET_COLUMNS[1:]])
         self.targets.setRowCount(result.targets_mm.size)
-        for row, target in enumerate(result.targets_mm):
+        for row, target in enumerate(positions.values_mm):
             cells = [f"{target:g}"] + [self._text(float(c[row]), unit).rsplit(" ", 1)[0]
                                        for c in columns]
             for column, shown in enumerate(cells):

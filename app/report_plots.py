@@ -201,8 +201,9 @@ def draw_bars(painter: QPainter, rect: QRectF, chart: BarChart, scale: float) ->
 
 def draw_iso_graph(painter: QPainter, rect: QRectF, graph: IsoGraph, scale: float) -> None:
     """The ISO 230-2 graph of a line: x̄↑ and x̄↓ with their ±2s bands, the bidirectional mean
-    (dashed), over the targets; a legend under the plot, off the data."""
-    x = np.asarray(graph.targets_mm, dtype=float)
+    (dashed), over the targets' positions on the line's axis; a legend under the plot, off the
+    data."""
+    x = np.asarray(graph.positions_mm, dtype=float)
     up = np.asarray(graph.mean_up, dtype=float)
     down = np.asarray(graph.mean_down, dtype=float)
     s_up = np.asarray(graph.s_up, dtype=float)

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .io.units import ANGLE_UNITS, DEVIATION_FACTOR
-from .machine import AXIS_INDEX, Machine
+from .machine import AXES, AXIS_INDEX, Machine
 from .userror import UserError
 
 FloatArray = NDArray[np.float64]
@@ -155,6 +155,10 @@ class LineData:
     run_direction : (R,) +1 for a run that travelled towards increasing targets, −1 backwards.
     times_s : (R, K) time of each reading in seconds since ``start_time`` (POSIX seconds).
     air_temp_c, material_temp_c : optional (R, K) per-reading temperatures.
+    origin_mm : the position the file gives its first target, of which ``targets_mm`` are the
+        distances (``origin_mm + targets_mm`` are the file's own target positions); None where
+        the file gives no positions (a capture binned in time) or the line was not read from a
+        file.
     """
 
     targets_mm: FloatArray
@@ -166,6 +170,7 @@ class LineData:
     air_temp_c: FloatArray | None = None
     material_temp_c: FloatArray | None = None
     metadata: Mapping[str, str] = field(default_factory=dict)
+    origin_mm: float | None = None
 
     def __post_init__(self) -> None:
         targets = np.asarray(self.targets_mm, dtype=float).reshape(-1)
@@ -180,10 +185,55 @@ class LineData:
         object.__setattr__(self, "deviations", deviations)
         object.__setattr__(self, "run_direction", directions)
         object.__setattr__(self, "times_s", times)
+        if self.origin_mm is not None:
+            object.__setattr__(self, "origin_mm", float(self.origin_mm))
 
     @property
     def runs(self) -> int:
         return int(self.deviations.shape[0])
+
+
+@dataclass(frozen=True)
+class TargetPositions:
+    """Where a line's targets are, as a table or a graph of the line shows them: ``values_mm``
+    (one per target, in the order of ``targets_mm``) and ``of``: "X", "Y" or "Z" (the machine
+    axis position, from the plan's start of a line along that axis), "file" (the positions the
+    file gives) or "line" (the distance from the line's start)."""
+
+    values_mm: FloatArray
+    of: str
+
+    @property
+    def label(self) -> str:
+        """The heading of a column or an axis of these positions ("X mm", "position mm", …)."""
+        return position_label(self.of)
+
+
+def position_label(of: str) -> str:
+    """The heading of target positions of kind ``of`` (:class:`TargetPositions`)."""
+    return {"file": "position mm", "line": "target mm"}.get(of, f"{of} mm")
+
+
+def target_positions(
+    targets_mm: FloatArray, spec: LineSpec | None = None, origin_mm: float | None = None
+) -> TargetPositions:
+    """The positions of a line's targets (``targets_mm``, distances from its first) as a
+    metrology engineer reads them: on the machine axis for a plan's line along one axis
+    (``spec``: its start plus the distance, signed by the direction; the positions ISO 230-2
+    tabulates), where the file put them for a file read without a plan (``origin_mm``,
+    :attr:`LineData.origin_mm`), and otherwise the distance from the line's start."""
+    targets = np.asarray(targets_mm, dtype=float)
+    if spec is not None:
+        direction = np.asarray(spec.direction, dtype=float)
+        along = np.flatnonzero(np.abs(direction) > 1.0 - 1e-9)
+        if along.size == 1:
+            k = int(along[0])
+            axis = AXES[k]
+            return TargetPositions(spec.positions(targets)[:, k], axis)
+        return TargetPositions(targets.copy(), "line")
+    if origin_mm is not None:
+        return TargetPositions(origin_mm + targets, "file")
+    return TargetPositions(targets.copy(), "line")
 
 
 @dataclass(frozen=True, eq=False)

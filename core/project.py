@@ -16,7 +16,8 @@ Layout (format version 1; DESIGN.md "HDF5 project")::
         corrected/             volucal's values (µm or µrad, measured − nominal)
                                each: targets_mm, deviations (attr unit), run_direction, times_s,
                                optional air_temp_c, material_temp_c; attrs start_time, unit,
-                               environment values, metadata_json
+                               environment values, metadata_json, optional origin_mm (the
+                               file's position of its first target)
         source                 the source file's bytes (uint8), attrs filename, sha256
         capture/               (dynamic captures) time_s, deviation, optional position_mm
     /identifications/<name>, /loops/<name>, /sensitivity/<name>, /compensation/<name>
@@ -789,6 +790,8 @@ def _data_group(data: LineData, unit: str) -> Group:
         attrs["environment_material_temp_c"] = np.asarray(env.material_temp_c, dtype=float)
     if env.expansion_ppm_per_c is not None:
         attrs["environment_expansion_ppm_per_c"] = float(env.expansion_ppm_per_c)
+    if data.origin_mm is not None:
+        attrs["origin_mm"] = float(data.origin_mm)
     children: dict[str, Group | Dataset] = {
         "targets_mm": Dataset(data.targets_mm, {"unit": "mm"}),
         "deviations": Dataset(data.deviations, {"unit": unit}),
@@ -836,6 +839,7 @@ def _data_from(group: Group | Dataset) -> LineData:
         air_temp_c=array("air_temp_c"),
         material_temp_c=array("material_temp_c"),
         metadata=json.loads(a.get("metadata_json", "{}")),
+        origin_mm=a.get("origin_mm"),
     )
 
 

@@ -19,7 +19,7 @@ from .display_units import DisplayUnits
 from .identify import UncertaintyBudget
 from .iso230_2 import evaluate
 from .machine import AXES
-from .measurement import Line
+from .measurement import Line, target_positions
 from .remeasurement import KEYS, Comparison
 from .report_blocks import Block, IsoGraph, IsoGraphs, Paragraph, Section, Signatures, Table
 from .tolerances import QUANTITIES, Tolerances, axis_verdicts, check_lines, line_axis
@@ -55,7 +55,7 @@ def iso_graphs_section(lines: Sequence[Line], units: DisplayUnits) -> Section:
             IsoGraph(
                 title=f"Axis {axis}: positioning deviation ({line.name})",
                 unit=units.symbol(unit),
-                targets_mm=_floats(r.targets_mm),
+                positions_mm=_floats(target_positions(r.targets_mm, line.spec).values_mm),
                 mean_up=_floats(units.convert(r.mean_up, unit)),
                 mean_down=_floats(units.convert(r.mean_down, unit)),
                 s_up=_floats(units.convert(r.s_up, unit)),

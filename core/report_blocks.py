@@ -70,7 +70,8 @@ class IsoGraph:
 
     title: str
     unit: str
-    targets_mm: tuple[float, ...]
+    #: the targets' positions on the line's axis (the plan's start plus the distance)
+    positions_mm: tuple[float, ...]
     mean_up: tuple[float, ...]
     mean_down: tuple[float, ...]
     s_up: tuple[float, ...]

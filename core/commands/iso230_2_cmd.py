@@ -3,7 +3,10 @@
 FILE is a log (.rtl, .rta, an ISO 230-2 table, a CSV/whitespace table) or a plan.toml, whose
 lines are all evaluated as imported (sign, units and environment correction of the plan). Prints,
 per line, A, E, R (both directions and bidirectional), M and B, and the per-target means and
-spreads; ``--json`` prints the same with the keys of DESIGN.md (``A_um``, ``A_up_um``, …).
+spreads at the targets' positions (on the machine axis for a plan's line along one axis, where
+the file puts them for a file alone); ``--json`` prints the same with the keys of DESIGN.md
+(``A_um``, ``A_up_um``, …), the positions as ``positions_mm`` (``positions_of``: "X", "Y", "Z",
+"file" or "line", the distance from the line's start) beside ``targets_mm`` (the distances).
 Straightness lines of a plan (and every line with ``--straightness``) also get their ISO 230-1
 straightness by the least-squares, minimum-zone and end-point reference lines.
 ``--exclude-outliers`` leaves out the readings the outlier screening flags and lists them.
@@ -30,7 +33,7 @@ from ..io.source import SourceText
 from ..io.table import ColumnMap, TableFormat, read_table
 from ..io.units import DEVIATION_FACTOR, choices, describe, is_angle, normalise_unit
 from ..iso230_2 import STRAIGHTNESS_METHODS, Iso230Result, evaluate, evaluate_straightness
-from ..measurement import LineData
+from ..measurement import LineData, LineSpec, position_label, target_positions
 from ..outliers import OutlierFlag, drop, screen
 from ..userror import UserError
 
@@ -99,6 +102,8 @@ class _Line:
     unit: str  # "um" or "urad"
     data: LineData
     notes: tuple[str, ...] = field(default=())
+    #: the plan's line (a file read without a plan has none)
+    spec: LineSpec | None = None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -127,11 +132,14 @@ def evaluate_line(
         flags = screen(data, line=line.name, unit=line.unit)
         data = drop(data, flags) if flags else data
     result = evaluate(data, line.unit)
+    positions = target_positions(result.targets_mm, line.spec, data.origin_mm)
     entry: dict[str, Any] = {
         "name": line.name,
         "file": str(line.file),
         "quantity": line.quantity,
         **result.to_json(),
+        "positions_mm": [float(v) for v in positions.values_mm],
+        "positions_of": positions.of,
     }
     if exclude_outliers:
         entry["excluded"] = [flag.to_json() for flag in flags]
@@ -163,6 +171,7 @@ def _lines(path: Path, args: argparse.Namespace) -> list[_Line]:
                 line.spec.quantity,
                 line.spec.unit,
                 line.corrected,
+                spec=line.spec,
             )
             for line in imported.lines
         ]
@@ -302,7 +311,7 @@ def render(entry: dict[str, Any], result: Iso230Result) -> str:
             first_left=True,
         )
     per_target = []
-    for i, target in enumerate(result.targets_mm):
+    for i, target in enumerate(entry["positions_mm"]):
         values = (
             result.mean_up[i],
             result.mean_down[i],
@@ -313,5 +322,6 @@ def render(entry: dict[str, Any], result: Iso230Result) -> str:
             result.repeatability[i],
         )
         per_target.append([f"{target:.3f}"] + [_fmt(float(v)) for v in values])
-    out += _table(["target mm", "x̄↑", "x̄↓", "x̄", "s↑", "s↓", "B_i", "R_i"], per_target)
+    heading = position_label(entry["positions_of"])
+    out += _table([heading, "x̄↑", "x̄↓", "x̄", "s↑", "s↓", "B_i", "R_i"], per_target)
     return "\n".join(out)

@@ -646,6 +646,7 @@ def _bin_positions(capture: Capture, step_mm: float, window_mm: float) -> LineDa
         times_s=times,
         start_time=capture.start_time,
         metadata={"capture_samples": str(capture.samples), "capture_step_mm": repr(step_mm)},
+        origin_mm=float(capture.position_mm[0]),
     )
 
 

@@ -278,6 +278,7 @@ def _line_data(
         run_direction=direction,
         times_s=times,
         metadata={"time_source": _TIME_SOURCE},
+        origin_mm=float(file_targets[0]),
     )
 
 

@@ -190,6 +190,7 @@ def _parse(source: SourceText, sign: int) -> RtlFile:
         if k.lower() in _USER_TEXT_KEYS and v
     }
     data = LineData(
+        origin_mm=float(targets[0]),
         targets_mm=relative[order],
         deviations=deviation_sorted,
         run_direction=run_direction,

@@ -588,6 +588,7 @@ def _assemble(
         air_temp_c=air,
         material_temp_c=material,
         metadata=metadata,
+        origin_mm=float(position[0]),
     )
 
 

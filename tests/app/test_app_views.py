@@ -117,8 +117,14 @@ def test_measurement_view_draws_the_iso_values_and_shows_them_at_the_default_siz
         rect = table.visualRect(table.model().index(row, 1))
         assert viewport.contains(rect), (row, rect, viewport)
     assert table.item(0, 1).text() == f"{result.A_um:.3f} µm"
-    # the per-target table: one row per target, x̄↑ in the label's unit
+    # the per-target table: one row per target at its X (the plan's start plus the distance),
+    # x̄↑ in the label's unit; the plot over the same positions
     assert view.targets.rowCount() == result.targets_mm.size
+    assert view.targets.horizontalHeaderItem(0).text() == "X mm"
+    x = stored.spec.positions(stored.corrected.targets_mm)[:, 0]
+    shown = [float(view.targets.item(row, 0).text()) for row in range(x.size)]
+    np.testing.assert_allclose(shown, x, atol=1e-3)
+    assert view.plot.getPlotItem().getAxis("bottom").labelText == "X (mm)"
     assert float(view.targets.item(3, 1).text()) == pytest.approx(result.mean_up[3], abs=1e-3)
     window.set_units("length", "inch")
     assert view.figures.item(0, 1).text() == f"{result.A_um / 25400:.7f} in"
@@ -320,7 +326,7 @@ def test_every_plot_saves_as_png_svg_and_csv(qtbot, window, tmp_path):
     assert {p.suffix for p in written} == {".png", ".svg", ".csv"}
     stem = next(p for p in written if p.suffix == ".csv" and "positioning" in p.name)
     rows = stem.read_text(encoding="utf-8").splitlines()
-    assert rows[1] == "series,target (mm),deviation (µm)"
+    assert rows[1] == "series,Y (mm),deviation (µm)"  # y_lin_1 runs along Y
     stored = window.document.project.lines["y_lin_1"]
     result = evaluate(stored.corrected, stored.spec.unit)
     up = [r.split(",") for r in rows[2:] if r.startswith("mean ↑")]

@@ -126,6 +126,40 @@ def test_iso230_2_json_for_logs_and_plans(plan, capsys):
     assert z["runs_up"] == 3 and z["runs_down"] == 3
 
 
+def test_iso230_2_tabulates_the_targets_where_the_plan_or_the_file_puts_them(plan, capsys):
+    # a file alone: the positions it gives (TGT_DATA 10, 20, 30 mm), as an ISO 230-2 report
+    # lists them, beside the distances from the first target
+    assert main(["iso230-2", str(DATA / "ecmc_hand.dat"), "--json"]) == 0
+    entry = json.loads(capsys.readouterr().out)["lines"][0]
+    assert entry["targets_mm"] == [0.0, 10.0, 20.0]
+    assert entry["positions_mm"] == [10.0, 20.0, 30.0] and entry["positions_of"] == "file"
+    assert main(["iso230-2", str(DATA / "ecmc_hand.dat")]) == 0
+    rows = capsys.readouterr().out.splitlines()
+    heading = next(i for i, row in enumerate(rows) if "x̄↑" in row)
+    assert rows[heading].split()[:2] == ["position", "mm"]
+    assert [row.split()[0] for row in rows[heading + 1 :]] == ["10.000", "20.000", "30.000"]
+    # a plan's line along Z from Z = -180 mm: the machine's Z of each target
+    assert main(["iso230-2", str(plan), "--json"]) == 0
+    z = {e["name"]: e for e in json.loads(capsys.readouterr().out)["lines"]}["z_iso"]
+    assert z["targets_mm"] == [0.0, 60.0, 120.0, 180.0]
+    assert z["positions_mm"] == [-180.0, -120.0, -60.0, 0.0] and z["positions_of"] == "Z"
+    assert main(["iso230-2", str(plan)]) == 0
+    out = capsys.readouterr().out
+    z_table = out[out.index("z_iso (") :].splitlines()
+    heading = next(i for i, row in enumerate(z_table) if "x̄↑" in row)
+    assert z_table[heading].split()[:2] == ["Z", "mm"]
+    assert z_table[heading + 1].split()[0] == "-180.000"
+
+
+def test_iso230_2_lists_a_real_ecmc_table_at_its_target_positions(realdata, capsys):
+    # ESS's ecmc test data: targets TGT_DATA 15 … 55 mm, as its own report lists them
+    path = realdata / "ess_ecmc_iso230_2" / "slit11360_axis1_testdata_ISO230_2.dat"
+    assert main(["iso230-2", str(path), "--json"]) == 0
+    entry = json.loads(capsys.readouterr().out)["lines"][0]
+    assert entry["positions_mm"] == [15.0, 25.0, 35.0, 45.0, 55.0]
+    assert entry["targets_mm"] == [0.0, 10.0, 20.0, 30.0, 40.0]
+
+
 def test_iso230_2_text_table(capsys):
     assert main(["iso230-2", str(DATA / "x_axis_hand.rtl"), "--sign", "-1"]) == 0
     out = capsys.readouterr().out
@@ -217,7 +251,7 @@ def test_iso230_2_columns_stay_apart_for_large_values(tmp_path, capsys):
     path.write_text("run,direction,position_mm,deviation_um\n" + "\n".join(rows) + "\n")
     assert main(["iso230-2", str(path)]) == 0
     out = capsys.readouterr().out.splitlines()
-    start = next(i for i, line in enumerate(out) if "target mm" in line)
+    start = next(i for i, line in enumerate(out) if "position mm" in line)
     table = out[start:]
     assert len(table) == 4
     for line in table:  # every cell two spaces from the next: 8 columns, whatever the width

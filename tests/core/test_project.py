@@ -105,6 +105,8 @@ def test_round_trip_of_lines_and_results(tmp_path):
             x, y = getattr(a.data, key), getattr(b.data, key)
             assert (x is None and y is None) or np.array_equal(x, y, equal_nan=True), key
         assert a.data.start_time == b.data.start_time
+        # where the file put its first target, which tables and graphs of a file alone show
+        assert a.data.origin_mm is not None and a.data.origin_mm == b.data.origin_mm
         assert a.data.environment == b.data.environment
         assert dict(a.data.metadata) == dict(b.data.metadata)
     for line in result.lines:
@@ -255,6 +257,7 @@ def test_checked_in_format_v1_file_loads():
     assert names == ["z_linear", "z_iso", "x_y0_z0", "y_straightness_x", "x_pitch_hand"]
     x = project.measurement().line("x_y0_z0").data
     np.testing.assert_array_equal(x.deviations[1], [-1.8, 0.3, 2.5, 3.7, 6.2])
+    assert x.origin_mm is None  # written before the file's first position was kept
     assert project.raw_bytes("x_y0_z0") == (DATA / "io" / "x_axis_hand.rtl").read_bytes()
     tree = project.result("loops", "example")
     assert tree["steps"][0]["effect"]["kind"] == "reversal"
