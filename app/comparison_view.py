@@ -190,7 +190,7 @@ class ComparisonView(View):
         item = self.plot.getPlotItem()
         item.clear()
         self.values.clearContents()
-        if self.comparison is None or not name:
+        if self.comparison is None or self.after_project is None or not name:
             item.setTitle("Before and after compensation", size="10pt")
             return
         pair = self.comparison.pair(name)
@@ -198,10 +198,11 @@ class ComparisonView(View):
         symbol = self.units.symbol(unit)
         item.setTitle(f"{name}: bidirectional mean x̄ ± 2s before and after", size="10pt")
         item.setLabel("left", f"deviation ({symbol})")
-        lines = self.document.project.lines
-        for which, result, colour, line in (("before", pair.before, BEFORE, pair.name),
-                                            ("after", pair.after, AFTER, pair.after_name)):
-            spec = lines[line].spec if line in lines else None
+        # each curve at its own line's positions: the re-measurement may name its lines apart
+        specs = (self.document.project.lines[pair.name].spec,
+                 self.after_project.lines[pair.after_name].spec)
+        for which, result, colour, spec in (("before", pair.before, BEFORE, specs[0]),
+                                            ("after", pair.after, AFTER, specs[1])):
             positions = target_positions(result.targets_mm, spec)
             item.setLabel("bottom", positions.label.replace(" mm", " (mm)"))
             x = positions.values_mm

@@ -451,8 +451,9 @@ def _preview_cells(item: FilePreview) -> list[str]:
     if item.line.flags:
         problems.append(f"{len(item.line.flags)} outlier flag(s)")
     problems += list(item.line.notes)
-    span = f"{data.targets_mm.min():g} … {data.targets_mm.max():g} mm" if data.targets_mm.size \
-        else "—"
+    # where the file puts its targets, as the preview plot draws them
+    positions = target_positions(data.targets_mm, origin_mm=data.origin_mm).values_mm
+    span = f"{positions.min():g} … {positions.max():g} mm" if positions.size else "—"
     return [item.line.format, item.spec.quantity, f"{data.targets_mm.size} ({span})",
             f"{up} / {down}", ", ".join(parts) or "not logged", "; ".join(problems) or "none"]
 

@@ -155,10 +155,9 @@ class LineData:
     run_direction : (R,) +1 for a run that travelled towards increasing targets, −1 backwards.
     times_s : (R, K) time of each reading in seconds since ``start_time`` (POSIX seconds).
     air_temp_c, material_temp_c : optional (R, K) per-reading temperatures.
-    origin_mm : the position the file gives its first target, of which ``targets_mm`` are the
-        distances (``origin_mm + targets_mm`` are the file's own target positions); None where
-        the file gives no positions (a capture binned in time) or the line was not read from a
-        file.
+    origin_mm : the file's position of relative target 0 (its first target), so that
+        ``origin_mm + targets_mm`` are the file's own target positions; None where the file gives
+        no positions (a capture binned in time) or the line was not read from a file.
     """
 
     targets_mm: FloatArray
@@ -193,6 +192,17 @@ class LineData:
         return int(self.deviations.shape[0])
 
 
+#: A line travels along a machine axis when its direction is this close to it.
+AXIS_PARALLEL = 0.999
+
+
+def travel_axis(direction: Sequence[float]) -> str | None:
+    """The machine axis a line of this (unit) direction travels along, or None (a diagonal)."""
+    along = np.abs(np.asarray(direction, dtype=float))
+    k = int(np.argmax(along))
+    return AXES[k] if along[k] > AXIS_PARALLEL else None
+
+
 @dataclass(frozen=True)
 class TargetPositions:
     """Where a line's targets are, as a table or a graph of the line shows them: ``values_mm``
@@ -217,19 +227,17 @@ def position_label(of: str) -> str:
 def target_positions(
     targets_mm: FloatArray, spec: LineSpec | None = None, origin_mm: float | None = None
 ) -> TargetPositions:
-    """The positions of a line's targets (``targets_mm``, distances from its first) as a
+    """The positions of a line's targets (``targets_mm``, relative to its first) as a
     metrology engineer reads them: on the machine axis for a plan's line along one axis
-    (``spec``: its start plus the distance, signed by the direction; the positions ISO 230-2
-    tabulates), where the file put them for a file read without a plan (``origin_mm``,
-    :attr:`LineData.origin_mm`), and otherwise the distance from the line's start."""
+    (``spec``, :func:`travel_axis`: that axis' coordinate of the target, the plan's start plus
+    the distance along the direction; the positions ISO 230-2 tabulates), where the file put
+    them for a file read without a plan (``origin_mm``, :attr:`LineData.origin_mm`), and
+    otherwise the distance from the line's start."""
     targets = np.asarray(targets_mm, dtype=float)
     if spec is not None:
-        direction = np.asarray(spec.direction, dtype=float)
-        along = np.flatnonzero(np.abs(direction) > 1.0 - 1e-9)
-        if along.size == 1:
-            k = int(along[0])
-            axis = AXES[k]
-            return TargetPositions(spec.positions(targets)[:, k], axis)
+        axis = travel_axis(spec.direction)
+        if axis is not None:
+            return TargetPositions(spec.positions(targets)[:, AXIS_INDEX[axis]], axis)
         return TargetPositions(targets.copy(), "line")
     if origin_mm is not None:
         return TargetPositions(origin_mm + targets, "file")

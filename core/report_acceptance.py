@@ -39,6 +39,7 @@ def iso_graphs_section(lines: Sequence[Line], units: DisplayUnits) -> Section:
             continue
         line = along[0]
         r = evaluate(line.data, line.spec.unit)
+        positions = target_positions(r.targets_mm, line.spec)
         unit = "um"
         others = (
             f"; {len(along) - 1} more line(s) along {axis} in the table" if len(along) > 1 else ""
@@ -55,7 +56,8 @@ def iso_graphs_section(lines: Sequence[Line], units: DisplayUnits) -> Section:
             IsoGraph(
                 title=f"Axis {axis}: positioning deviation ({line.name})",
                 unit=units.symbol(unit),
-                positions_mm=_floats(target_positions(r.targets_mm, line.spec).values_mm),
+                positions_mm=_floats(positions.values_mm),
+                position_label=positions.label,
                 mean_up=_floats(units.convert(r.mean_up, unit)),
                 mean_down=_floats(units.convert(r.mean_down, unit)),
                 s_up=_floats(units.convert(r.s_up, unit)),

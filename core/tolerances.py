@@ -36,7 +36,7 @@ from .conformance import COVERAGE_K, decide
 from .identify import UncertaintyBudget
 from .iso230_2 import Iso230Result, evaluate
 from .machine import AXES
-from .measurement import Line
+from .measurement import Line, travel_axis
 from .userror import UserError
 
 #: The ISO 230-2 values a limit can be set on, with their names.
@@ -49,8 +49,6 @@ QUANTITIES: dict[str, str] = {
 }
 #: Values that compare readings at one target (scale terms of U cancel).
 SAME_TARGET = ("R", "B")
-#: A line belongs to an axis when its travel direction is this close to it.
-AXIS_PARALLEL = 0.999
 PASS = "pass"
 FAIL = "fail"
 
@@ -119,9 +117,7 @@ def line_axis(line: Line) -> str | None:
     """The machine axis a linear line travels along, or None (diagonals, other quantities)."""
     if line.spec.quantity != "linear":
         return None
-    direction = np.abs(np.asarray(line.spec.direction, dtype=float))
-    k = int(np.argmax(direction))
-    return AXES[k] if direction[k] > AXIS_PARALLEL else None
+    return travel_axis(line.spec.direction)
 
 
 @dataclass(frozen=True)

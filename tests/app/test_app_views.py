@@ -312,6 +312,14 @@ def test_the_comparison_view_shows_both_measurements(qtbot, window, small_remeas
     means = {i.name(): i.getData()[1] for i in data_items(view.plot) if i.name()}
     np.testing.assert_allclose(means["before: x̄ ± 2s"], pair.before.mean)
     np.testing.assert_allclose(means["after: x̄ ± 2s"], pair.after.mean)
+    # each curve at the X of its own line's targets (its plan's start plus the distance)
+    xs = {i.name(): i.getData()[0] for i in data_items(view.plot) if i.name()}
+    for which, project, name in (("before", window.document.project, pair.name),
+                                 ("after", Project.open(small_remeasured_file), pair.after_name)):
+        stored = project.lines[name]
+        x = stored.spec.positions(stored.corrected.targets_mm)[:, 0]
+        np.testing.assert_allclose(xs[f"{which}: x̄ ± 2s"], x)
+    assert view.plot.getPlotItem().getAxis("bottom").labelText == "X (mm)"
     assert view.values.item(0, 1).text() == f"{pair.before.A_um:.3f} µm"
 
 

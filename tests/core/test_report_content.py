@@ -129,3 +129,18 @@ def test_compensation_checksums_read_only_the_files_the_run_recorded(tmp_path):
     assert not any("unrecorded" in row[0] for row in table.rows)
     secret_digest = hashlib.sha256(b"not ours").hexdigest()
     assert all(secret_digest not in row[2] for row in table.rows)
+
+
+def test_iso_graphs_are_drawn_over_the_axis_positions_of_the_targets(project):
+    from volucal.core.display_units import DisplayUnits
+    from volucal.core.report_acceptance import iso_graphs_section
+    from volucal.core.report_blocks import IsoGraphs
+
+    # z_iso runs along +Z from Z = -180 mm: its graph is over Z -180 … 0, as ISO 230-2 draws
+    # positions, not over the distances 0 … 180 from its first target
+    z_iso = Project.open(project).measurement().line("z_iso")
+    section = iso_graphs_section([z_iso], DisplayUnits())
+    graphs = next(b for b in section.blocks if isinstance(b, IsoGraphs)).graphs
+    assert [g.title for g in graphs] == ["Axis Z: positioning deviation (z_iso)"]
+    assert graphs[0].position_label == "Z mm"
+    assert graphs[0].positions_mm == (-180.0, -120.0, -60.0, 0.0)
