@@ -48,7 +48,16 @@ import numpy as np
 
 from ..environment import correct_line_data
 from ..machine import AXES, Machine, MachineError
-from ..measurement import Line, LineData, LineSpec, Measurement, Plan, PlanError
+from ..measurement import (
+    Line,
+    LineData,
+    LineSpec,
+    Measurement,
+    Plan,
+    PlanError,
+    target_positions,
+    travel_axis,
+)
 from ..outliers import OutlierFlag, drop, screen
 from ..progress import CancelToken, ProgressCallback, check, report
 from ..userror import FormatError
@@ -778,6 +787,9 @@ def import_line(spec: LineSpec, *, drop_outliers: bool = False) -> LineImport:
                 f"env_corrected = false has no effect on a {spec.quantity} line "
                 "(its optics do not depend on the air's refractive index)"
             )
+    placed = _placed_apart(spec, raw)
+    if placed is not None:
+        notes.append(placed)
     flags = screen(corrected, line=spec.name, unit=spec.unit)
     if drop_outliers and flags:
         corrected = drop(corrected, flags)
@@ -794,6 +806,30 @@ def import_line(spec: LineSpec, *, drop_outliers: bool = False) -> LineImport:
         notes=tuple(notes),
         flags=tuple(flags),
         capture=capture,
+    )
+
+
+#: A plan places a line's targets where its file puts them when they agree within this (mm).
+PLACED_TOLERANCE_MM = 1e-3
+
+
+def _placed_apart(spec: LineSpec, raw: LineData) -> str | None:
+    """A note where a line along one axis is placed by the plan elsewhere than its file puts its
+    targets, or None. The plan's ``start`` and ``direction`` place the readings for the model;
+    a file's positions may be the laser's own (from its zero) and the note is no error, but a
+    start copied from another line shifts every error function read from it, and nothing else
+    would tell."""
+    axis = travel_axis(spec.direction)
+    if axis is None or raw.origin_mm is None or raw.targets_mm.size == 0:
+        return None
+    plan = target_positions(raw.targets_mm, spec).values_mm
+    file = target_positions(raw.targets_mm, origin_mm=raw.origin_mm).values_mm
+    if np.max(np.abs(plan - file)) <= PLACED_TOLERANCE_MM:
+        return None
+    return (
+        f"the file puts its targets at {file.min():g} … {file.max():g} mm and the plan's start "
+        f"and direction at {axis} {plan.min():g} … {plan.max():g} mm (the model uses the "
+        "plan's); where the file's positions are the machine's, check start and direction"
     )
 
 

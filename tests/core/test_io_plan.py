@@ -111,6 +111,24 @@ def test_env_corrected_false_applies_edlen_and_material(tmp_path):
     assert pitch.corrections == () and "no effect" in pitch.notes[0]
 
 
+def test_a_line_placed_apart_from_its_file_s_positions_gets_a_note(tmp_path):
+    # z_iso's table lists its targets at 0 … 180 mm, the plan starts it at Z = -180 mm: the
+    # laser's own positions, perhaps, or a start copied from another line; the import says so.
+    # The .rta of x_pitch_hand runs from 400 down to 0, started at X = 400 in the plan: the same
+    # places, no note
+    lines = {line.name: line for line in import_plan(load_plan(DATA / "plan.toml")).lines}
+    (note,) = [n for n in lines["z_iso"].notes if "puts its targets" in n]
+    assert "at 0 … 180 mm" in note and "at Z -180 … 0 mm" in note
+    for name in ("x_y0_z0", "x_pitch_hand", "z_linear"):
+        assert not [n for n in lines[name].notes if "puts its targets" in n], name
+    # a start copied from the line before: x_y0_z0's readings moved to X = 100 … 500
+    path = copy_plan(tmp_path, 'start = [0, 0, 0]\ndirection = [1, 0, 0]',
+                     'start = [100, 0, 0]\ndirection = [1, 0, 0]')
+    moved = {line.name: line for line in import_plan(load_plan(path)).lines}["x_y0_z0"]
+    (note,) = [n for n in moved.notes if "puts its targets" in n]
+    assert "at 0 … 400 mm" in note and "at X 100 … 500 mm" in note
+
+
 def test_outliers_are_flagged_and_dropped_only_on_request(tmp_path):
     rng = np.random.default_rng(3)
     from volucal.core.io.rtl import reading_times
