@@ -822,13 +822,14 @@ def _placed_apart(spec: LineSpec, raw: LineData) -> str | None:
     axis = travel_axis(spec.direction)
     if axis is None or raw.origin_mm is None or raw.targets_mm.size == 0:
         return None
-    plan = target_positions(raw.targets_mm, spec).values_mm
-    file = target_positions(raw.targets_mm, origin_mm=raw.origin_mm).values_mm
-    if np.max(np.abs(plan - file)) <= PLACED_TOLERANCE_MM:
+    # first … last target in the file's order of positions, so that a reversed direction shows
+    by_plan = target_positions(raw.targets_mm, spec).values_mm
+    by_file = target_positions(raw.targets_mm, origin_mm=raw.origin_mm).values_mm
+    if np.max(np.abs(by_plan - by_file)) <= PLACED_TOLERANCE_MM:
         return None
     return (
-        f"the file puts its targets at {file.min():g} … {file.max():g} mm and the plan's start "
-        f"and direction at {axis} {plan.min():g} … {plan.max():g} mm (the model uses the "
+        f"the file puts its targets at {by_file[0]:g} … {by_file[-1]:g} mm and the plan's start "
+        f"and direction at {axis} {by_plan[0]:g} … {by_plan[-1]:g} mm (the model uses the "
         "plan's); where the file's positions are the machine's, check start and direction"
     )
 

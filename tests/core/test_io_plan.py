@@ -127,6 +127,12 @@ def test_a_line_placed_apart_from_its_file_s_positions_gets_a_note(tmp_path):
     moved = {line.name: line for line in import_plan(load_plan(path)).lines}["x_y0_z0"]
     (note,) = [n for n in moved.notes if "puts its targets" in n]
     assert "at 0 … 400 mm" in note and "at X 100 … 500 mm" in note
+    # or run the other way: the same span, reversed
+    path = copy_plan(tmp_path, 'start = [0, 0, 0]\ndirection = [1, 0, 0]',
+                     'start = [400, 0, 0]\ndirection = [-1, 0, 0]')
+    reversed_ = {line.name: line for line in import_plan(load_plan(path)).lines}["x_y0_z0"]
+    (note,) = [n for n in reversed_.notes if "puts its targets" in n]
+    assert "at 0 … 400 mm" in note and "at X 400 … 0 mm" in note
 
 
 def test_outliers_are_flagged_and_dropped_only_on_request(tmp_path):
