@@ -171,6 +171,7 @@ def _lines(path: Path, args: argparse.Namespace) -> list[_Line]:
                 line.spec.quantity,
                 line.spec.unit,
                 line.corrected,
+                notes=line.notes,
                 spec=line.spec,
             )
             for line in imported.lines

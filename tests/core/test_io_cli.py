@@ -143,6 +143,8 @@ def test_iso230_2_tabulates_the_targets_where_the_plan_or_the_file_puts_them(pla
     z = {e["name"]: e for e in json.loads(capsys.readouterr().out)["lines"]}["z_iso"]
     assert z["targets_mm"] == [0.0, 60.0, 120.0, 180.0]
     assert z["positions_mm"] == [-180.0, -120.0, -60.0, 0.0] and z["positions_of"] == "Z"
+    # and the import's note that the file lists them at 0 … 180 mm
+    assert any("file puts its targets at 0 … 180 mm" in note for note in z["notes"])
     assert main(["iso230-2", str(plan)]) == 0
     out = capsys.readouterr().out
     z_table = out[out.index("z_iso (") :].splitlines()
