@@ -583,13 +583,12 @@ def _traceability(project: Project, path: Path, lines: Sequence[Line]) -> Sectio
     conventions = sorted(
         {str(project.lines[n.name].provenance.get("sign_convention", "")) for n in lines} - {""}
     )
-    notes = sorted(
-        {
-            str(c)
-            for s in project.lines.values()
-            for c in [*s.provenance.get("corrections", []), *s.provenance.get("notes", [])]
-        }
-    )
+    # each correction or note once, with the lines it was made on
+    noted: dict[str, list[str]] = {}
+    for name, stored in project.lines.items():
+        for c in [*stored.provenance.get("corrections", []), *stored.provenance.get("notes", [])]:
+            noted.setdefault(str(c), []).append(name)
+    notes = [f"{c} ({', '.join(sorted(names))})" for c, names in sorted(noted.items())]
     pairs = [
         ("Project file", f"{path.name} (SHA-256 {_sha256_file(path)})"),
         ("Project created / modified", f"{project.created} / {project.modified}"),

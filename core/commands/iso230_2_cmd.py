@@ -6,7 +6,8 @@ per line, A, E, R (both directions and bidirectional), M and B, and the per-targ
 spreads at the targets' positions (on the machine axis for a plan's line along one axis, where
 the file puts them for a file alone); ``--json`` prints the same with the keys of DESIGN.md
 (``A_um``, ``A_up_um``, …), the positions as ``positions_mm`` (``positions_of``: "X", "Y", "Z",
-"file" or "line", the distance from the line's start) beside ``targets_mm`` (the distances).
+"file" or "line", the distance from the line's start) beside ``targets_mm`` (the distances), and
+the import's ``notes`` of a line.
 Straightness lines of a plan (and every line with ``--straightness``) also get their ISO 230-1
 straightness by the least-squares, minimum-zone and end-point reference lines.
 ``--exclude-outliers`` leaves out the readings the outlier screening flags and lists them.

@@ -55,7 +55,6 @@ from ..measurement import (
     Measurement,
     Plan,
     PlanError,
-    target_positions,
     travel_axis,
 )
 from ..outliers import OutlierFlag, drop, screen
@@ -787,9 +786,6 @@ def import_line(spec: LineSpec, *, drop_outliers: bool = False) -> LineImport:
                 f"env_corrected = false has no effect on a {spec.quantity} line "
                 "(its optics do not depend on the air's refractive index)"
             )
-    placed = _placed_apart(spec, raw)
-    if placed is not None:
-        notes.append(placed)
     flags = screen(corrected, line=spec.name, unit=spec.unit)
     if drop_outliers and flags:
         corrected = drop(corrected, flags)
@@ -809,28 +805,33 @@ def import_line(spec: LineSpec, *, drop_outliers: bool = False) -> LineImport:
     )
 
 
-#: A plan places a line's targets where its file puts them when they agree within this (mm).
-PLACED_TOLERANCE_MM = 1e-3
+#: A plan places a line's targets where its file puts them when they agree within this (mm):
+#: beyond a capture's first sample, an inch table's rounding or a target tolerance, and far
+#: below a start copied from another line (tens of mm), which is what the note is for.
+PLACED_TOLERANCE_MM = 0.1
 
 
-def _placed_apart(spec: LineSpec, raw: LineData) -> str | None:
-    """A note where a line along one axis is placed by the plan elsewhere than its file puts its
+def placed_apart(spec: LineSpec, raw: LineData) -> str | None:
+    """A note where a plan's line along one axis is placed elsewhere than its file puts its
     targets, or None. The plan's ``start`` and ``direction`` place the readings for the model;
     a file's positions may be the laser's own (from its zero) and the note is no error, but a
     start copied from another line shifts every error function read from it, and nothing else
-    would tell."""
+    would tell. The file's positions are distances along the beam: a direction a little off the
+    axis is compared by its sign alone."""
     axis = travel_axis(spec.direction)
     if axis is None or raw.origin_mm is None or raw.targets_mm.size == 0:
         return None
-    # first … last target in the file's order of positions, so that a reversed direction shows
-    by_plan = target_positions(raw.targets_mm, spec).values_mm
-    by_file = target_positions(raw.targets_mm, origin_mm=raw.origin_mm).values_mm
+    k = AXES.index(axis)
+    by_plan = spec.start_mm[k] + np.sign(spec.direction[k]) * raw.targets_mm
+    by_file = raw.origin_mm + raw.targets_mm
     if np.max(np.abs(by_plan - by_file)) <= PLACED_TOLERANCE_MM:
         return None
+    # the lowest and the highest of the file's positions, each where the plan puts it, so that
+    # a line the plan runs the other way shows
     return (
         f"the file puts its targets at {by_file[0]:g} … {by_file[-1]:g} mm and the plan's start "
-        f"and direction at {axis} {by_plan[0]:g} … {by_plan[-1]:g} mm (the model uses the "
-        "plan's); where the file's positions are the machine's, check start and direction"
+        f"and direction at {axis} {by_plan[0]:g} … {by_plan[-1]:g} mm (volucal uses the plan's). "
+        "Where the file's positions are the machine's, check start and direction"
     )
 
 
@@ -881,9 +882,12 @@ def import_plan(
         if not os.path.lexists(spec.file):
             raise fail("file", f"{spec.file} does not exist")
         try:
-            imported.append(import_line(spec, drop_outliers=drop_outliers))
+            line = import_line(spec, drop_outliers=drop_outliers)
         except LineFieldError as exc:
             raise fail(exc.key, exc.reason) from None
+        # against the plan's entry, not a proposed one (the import wizard's preview)
+        placed = placed_apart(spec, line.raw)
+        imported.append(line if placed is None else replace(line, notes=(*line.notes, placed)))
     report(progress, 1.0, "imported")
     lines = session_order([Line(item.spec, item.corrected) for item in imported])
     measurement = Measurement(plan.machine, tuple(lines), dict(plan.uncertainty))

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from volucal.core.io.plan import (
     UNCERTAINTY_KEYS,
+    import_line,
     import_plan,
     load_measurement,
     load_plan,
@@ -133,6 +134,16 @@ def test_a_line_placed_apart_from_its_file_s_positions_gets_a_note(tmp_path):
     reversed_ = {line.name: line for line in import_plan(load_plan(path)).lines}["x_y0_z0"]
     (note,) = [n for n in reversed_.notes if "puts its targets" in n]
     assert "at 0 … 400 mm" in note and "at X 400 … 0 mm" in note
+    # a start 0.05 mm off (a capture's first sample, an inch table's rounding) or a beam 40 mrad
+    # off the axis (the file's positions are distances along the beam) is no misplacement
+    for start, direction in (("[0.05, 0, 0]", "[1, 0, 0]"), ("[0, 0, 0]", "[1, 0.04, 0]")):
+        path = copy_plan(tmp_path, 'start = [0, 0, 0]\ndirection = [1, 0, 0]',
+                         f"start = {start}\ndirection = {direction}")
+        line = {line.name: line for line in import_plan(load_plan(path)).lines}["x_y0_z0"]
+        assert not [n for n in line.notes if "puts its targets" in n], (start, direction)
+    # the import wizard's preview reads a file with a proposed entry, not the plan's: no note
+    z_iso = next(s for s in load_plan(DATA / "plan.toml").lines if s.name == "z_iso")
+    assert not [n for n in import_line(z_iso).notes if "puts its targets" in n]
 
 
 def test_outliers_are_flagged_and_dropped_only_on_request(tmp_path):

@@ -144,3 +144,14 @@ def test_iso_graphs_are_drawn_over_the_axis_positions_of_the_targets(project):
     assert [g.title for g in graphs] == ["Axis Z: positioning deviation (z_iso)"]
     assert graphs[0].position_label == "Z mm"
     assert graphs[0].positions_mm == (-180.0, -120.0, -60.0, 0.0)
+
+
+def test_the_notes_at_import_name_their_lines(project):
+    # each correction or note once, with the lines it was made on: a note of one line (z_linear's
+    # nm, x_pitch_hand's…) reads as that line's, not as the session's
+    section = _section(build_report(ReportRequest(project)), "Traceability")
+    (paragraph,) = [
+        b for b in section.blocks
+        if isinstance(b, Paragraph) and b.text.startswith("Corrections and notes at import")
+    ]
+    assert "deviations converted from nm to um (z_linear)" in paragraph.text
