@@ -204,7 +204,7 @@ class ComparisonView(View):
         for which, result, colour, spec in (("before", pair.before, BEFORE, specs[0]),
                                             ("after", pair.after, AFTER, specs[1])):
             positions = target_positions(result.targets_mm, spec)
-            item.setLabel("bottom", positions.label.replace(" mm", " (mm)"))
+            item.setLabel("bottom", positions.axis_title)
             x = positions.values_mm
             s = np.fmax(result.s_up, result.s_down)
             mean = self.units.convert(result.mean, unit)

@@ -412,7 +412,7 @@ class PreviewPage(QWizardPage):
         plot.setLabel("left", f"deviation ({unit})")
         # where the file puts its targets: the plan's start is not yet this line's
         positions = target_positions(data.targets_mm, origin_mm=data.origin_mm)
-        plot.setLabel("bottom", positions.label.replace(" mm", " (mm)"))
+        plot.setLabel("bottom", positions.axis_title)
         for run in range(data.runs):
             colour = plots.FORWARD if data.run_direction[run] > 0 else plots.BACKWARD
             plot.addItem(pg.PlotDataItem(positions.values_mm, data.deviations[run],

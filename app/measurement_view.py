@@ -218,7 +218,7 @@ class MeasurementView(View):
                 "angular": "angular deviation"}[quantity]
         item.setTitle(f"{what} — {self.line_box.currentText()}", size="10pt")
         item.setLabel("left", f"deviation ({self.shown_unit(unit)})")
-        item.setLabel("bottom", positions.label.replace(" mm", " (mm)"))
+        item.setLabel("bottom", positions.axis_title)
         x = positions.values_mm
         up = result.mean_up + 2 * result.s_up
         down = result.mean_down + 2 * result.s_down

@@ -251,7 +251,7 @@ def draw_iso_graph(painter: QPainter, rect: QRectF, graph: IsoGraph, scale: floa
     painter.drawLine(QPointF(frame.plot.left(), frame.y(0.0)),
                      QPointF(frame.plot.right(), frame.y(0.0)))
     painter.restore()
-    frame.x_label(graph.position_label.replace(" mm", " (mm)"))
+    frame.x_label(graph.position_title)
     # the legend, in a row under the plot
     painter.setFont(_font(6.5))
     left = frame.plot.left()

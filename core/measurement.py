@@ -218,6 +218,11 @@ class TargetPositions:
         """The heading of a column or an axis of these positions ("X mm", "position mm", …)."""
         return position_label(self.of)
 
+    @property
+    def axis_title(self) -> str:
+        """The title of a plot's axis of these positions ("X (mm)", "position (mm)", …)."""
+        return self.label.removesuffix(" mm") + " (mm)"
+
 
 def position_label(of: str) -> str:
     """The heading of target positions of kind ``of`` (:class:`TargetPositions`)."""

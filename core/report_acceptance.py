@@ -57,7 +57,7 @@ def iso_graphs_section(lines: Sequence[Line], units: DisplayUnits) -> Section:
                 title=f"Axis {axis}: positioning deviation ({line.name})",
                 unit=units.symbol(unit),
                 positions_mm=_floats(positions.values_mm),
-                position_label=positions.label,
+                position_title=positions.axis_title,
                 mean_up=_floats(units.convert(r.mean_up, unit)),
                 mean_down=_floats(units.convert(r.mean_down, unit)),
                 s_up=_floats(units.convert(r.s_up, unit)),

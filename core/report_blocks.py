@@ -72,8 +72,8 @@ class IsoGraph:
     unit: str
     #: the targets' positions on the line's axis (the plan's start plus the distance)
     positions_mm: tuple[float, ...]
-    #: their heading ("X mm", …: :func:`~volucal.core.measurement.position_label`)
-    position_label: str
+    #: the title of their axis ("X (mm)", …: :attr:`TargetPositions.axis_title`)
+    position_title: str
     mean_up: tuple[float, ...]
     mean_down: tuple[float, ...]
     s_up: tuple[float, ...]

@@ -142,7 +142,7 @@ def test_iso_graphs_are_drawn_over_the_axis_positions_of_the_targets(project):
     section = iso_graphs_section([z_iso], DisplayUnits())
     graphs = next(b for b in section.blocks if isinstance(b, IsoGraphs)).graphs
     assert [g.title for g in graphs] == ["Axis Z: positioning deviation (z_iso)"]
-    assert graphs[0].position_label == "Z mm"
+    assert graphs[0].position_title == "Z (mm)"
     assert graphs[0].positions_mm == (-180.0, -120.0, -60.0, 0.0)
 
 
