@@ -16,6 +16,14 @@ without it are compared with those fitted with it:
   standard uncertainty :data:`RESTS_RATIO` times wider) cannot be checked against another line:
   it is named, nothing is added.
 
+Structure spread over many lines can pull an error a little through each of them, and by much
+through all: no line alone moves it beyond, and the moves add up. Over the unexplained lines, the
+root sum of squares of an error's moves is set against :data:`REACH_SIGMAS` times
+√(stated² + the sum of what each line's own information adds): the leave-one-line-out (jackknife)
+spread of the error over the lines nothing explains. Beyond it, the error is named as moved by
+those lines together, and its covariance widened by each of their moves in full
+(:func:`moved_together`); with one line it is the rule above.
+
 An outside effect that every line carries alike (a laser that wanders on every line) moves no
 error when one line is left out: what the lines agree on cannot be told from the machine.
 """
@@ -52,7 +60,17 @@ class Reach:
     line: str
     moves: tuple[Move, ...]
     rests_on: tuple[str, ...]
-    delta: FloatArray = field(repr=False)
+    #: the parameters without the line minus with it, for the errors that do not rest on it
+    change: FloatArray = field(repr=False)
+    #: per error that does not rest on the line: how far it moves (as :attr:`Move.move`) and what
+    #: the line's own information adds to its variance
+    shifts: dict[str, tuple[float, float]] = field(default_factory=dict, repr=False)
+
+    @property
+    def delta(self) -> FloatArray:
+        """The move that widens the errors' covariance: :attr:`change` where an error moves
+        beyond, zero otherwise."""
+        return self.change if self.moves else np.zeros_like(self.change)
 
     def sentence(self) -> str:
         """What the unexplained entry of the line adds to its description ("" for nothing)."""
@@ -99,7 +117,7 @@ def reach_of_lines(
         index = names.index(name)
         sigma = np.where(readings.line == index, readings.sigma * LEFT_OUT_SIGMA, readings.sigma)
         without = refit(replace(readings, sigma=sigma))
-        moves, rests = [], []
+        moves, rests, shifts = [], [], {}
         for eid in ids:
             if not without.is_identified(eid):
                 rests.append(eid)
@@ -109,19 +127,76 @@ def reach_of_lines(
                 rests.append(eid)
                 continue
             move = _rms_move(whole, without, eid)
-            allowed = np.sqrt(stated[eid] ** 2 + max(alone**2 - with_line[eid] ** 2, 0.0))
-            if move > REACH_SIGMAS * allowed:
+            added = max(alone**2 - with_line[eid] ** 2, 0.0)
+            shifts[eid] = (move, added)
+            if move > REACH_SIGMAS * np.sqrt(stated[eid] ** 2 + added):
                 moves.append(Move(eid, move, stated[eid]))
         moves.sort(key=lambda m: m.ratio, reverse=True)
-        delta = np.zeros_like(whole.model.parameters)
-        if moves:
-            # an error the line alone determines is set anew (or left at zero) without it: its
-            # move is no pull of the line's against the others'
-            for eid in set(ids) - set(rests):
-                at = whole.model.parameter_slices[eid]
-                delta[at] = without.model.parameters[at] - whole.model.parameters[at]
-        out[name] = Reach(name, tuple(moves), tuple(rests), delta)
+        # an error the line alone determines is set anew (or left at zero) without it: its move
+        # is no pull of the line's against the others'
+        change = np.zeros_like(whole.model.parameters)
+        for eid in shifts:
+            at = whole.model.parameter_slices[eid]
+            change[at] = without.model.parameters[at] - whole.model.parameters[at]
+        out[name] = Reach(name, tuple(moves), tuple(rests), change, shifts)
     return out
+
+
+@dataclass(frozen=True, eq=False)
+class Together:
+    """The errors the unexplained lines move beyond their stated uncertainty together and none
+    alone (:attr:`Move.move` the root sum of squares of the lines' moves), the lines, and the
+    moves that widen the errors' covariance (one per line, on those errors' parameters)."""
+
+    lines: tuple[str, ...]
+    moves: tuple[Move, ...]
+    deltas: tuple[FloatArray, ...] = field(repr=False)
+
+    def warning(self) -> str:
+        """The sentence report.json's warnings and the console give."""
+        them, its = ("it", "its") if len(self.moves) == 1 else ("them", "their")
+        return (
+            f"left out one at a time, the {len(self.lines)} lines whose systematic residual "
+            f"nothing explains move {_listed([m.text() for m in self.moves])} together, as the "
+            f"root sum of squares of their moves, though none alone moves {them} beyond {its} "
+            f"stated uncertainty: their structure pulls {them} a little through each line; the "
+            "stated uncertainties include these moves"
+        )
+
+    def to_json(self) -> dict[str, object]:
+        return {"lines": list(self.lines), "moves": [m.to_json() for m in self.moves]}
+
+
+def moved_together(final: Identification, reach: dict[str, Reach]) -> Together | None:
+    """Over two or more lines left out (:func:`reach_of_lines`), the errors no line moves beyond
+    and none rests on, whose moves' root sum of squares is beyond :data:`REACH_SIGMAS` times
+    √(stated² + what the lines' own information adds, summed): what a jackknife over those lines
+    reads. None when there is none."""
+    if len(reach) < 2:
+        return None
+    named = {m.error_id for r in reach.values() for m in r.moves}
+    named |= {eid for r in reach.values() for eid in r.rests_on}
+    candidates = set().union(*(r.shifts for r in reach.values())) - named
+    moves = []
+    for eid in sorted(candidates):
+        shifts = [r.shifts[eid] for r in reach.values()]
+        stated = rms_std(final, eid)
+        spread = float(np.sqrt(sum(move**2 for move, _ in shifts)))
+        if spread > REACH_SIGMAS * np.sqrt(stated**2 + sum(added for _, added in shifts)):
+            moves.append(Move(eid, spread, stated))
+    if not moves:
+        return None
+    moves.sort(key=lambda m: m.ratio, reverse=True)
+    deltas = []
+    for r in reach.values():
+        if r.moves:
+            continue  # its whole move widens the covariance already
+        delta = np.zeros_like(r.change)
+        for move in moves:
+            at = final.model.parameter_slices[move.error_id]
+            delta[at] = r.change[at]
+        deltas.append(delta)
+    return Together(tuple(reach), tuple(moves), tuple(deltas))
 
 
 def with_reach(unexplained: Sequence[Unexplained], reach: dict[str, Reach]) -> list[Unexplained]:

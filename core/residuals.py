@@ -93,7 +93,7 @@ from .loop_end import (
 )
 from .loop_forward import AUDIT_ROUNDS, forward, prune
 from .loop_judge import BOTH_WAYS, PLACED_AGAIN, TOGETHER
-from .loop_reach import reach_of_lines, with_reach
+from .loop_reach import Together, moved_together, reach_of_lines, with_reach
 from .loop_records import (
     ESTIMATED_AGAIN,
     EffectKey,
@@ -146,6 +146,9 @@ class LoopResult:
     #: per kept effect (as ``final.effects``): for a drift whose time constant the loop searched,
     #: τ's standard-uncertainty range and the drift's size at either end (empty otherwise)
     searched_ranges: tuple[dict[str, object], ...] = ()
+    #: the errors the unexplained lines move beyond their stated uncertainty together and none
+    #: alone (:func:`~volucal.core.loop_reach.moved_together`)
+    together: Together | None = None
 
     @property
     def kept(self) -> tuple[Effect, ...]:
@@ -255,6 +258,7 @@ class LoopResult:
                 }
                 for u in self.unexplained
             ],
+            **({"moved_together": self.together.to_json()} if self.together else {}),
             "warnings": list(self.warnings),
             **({"basis": self.spacing.report()} if self.spacing is not None else {}),
         }
@@ -267,9 +271,11 @@ def _with_reach(
     final: Identification,
     leftover: list[Unexplained],
     cancel: CancelToken | None,
-) -> tuple[Identification, list[Unexplained]]:
-    """The final fit with the errors' covariance widened by what each unexplained line pulls,
-    and the unexplained entries saying it (:func:`~volucal.core.loop_reach.reach_of_lines`)."""
+) -> tuple[Identification, list[Unexplained], Together | None]:
+    """The final fit with the errors' covariance widened by what each unexplained line pulls
+    and by what they pull together, the unexplained entries saying the former
+    (:func:`~volucal.core.loop_reach.reach_of_lines`), and the latter
+    (:func:`~volucal.core.loop_reach.moved_together`)."""
     fit_options = replace(options.identify, redundancy=False, spacing_mm=spacing.spacing_mm)
 
     def refit(weighted: Readings) -> Identification:
@@ -283,8 +289,10 @@ def _with_reach(
         )
 
     reach = reach_of_lines(final, [u.line for u in leftover if u.line], refit)
+    together = moved_together(final, reach)
     pulls = [r.delta for r in reach.values() if r.moves]
-    return with_shape_doubt(final, pulls, share=1.0), with_reach(leftover, reach)
+    pulls += list(together.deltas) if together else []
+    return with_shape_doubt(final, pulls, share=1.0), with_reach(leftover, reach), together
 
 
 def _cv_warnings(readings: Readings, cv: CrossValidation, redundant: Sequence[str]) -> list[str]:
@@ -437,7 +445,10 @@ def _close_loop(
     current = with_shape_doubt(current, [spacing.shape_missed], share=1.0)
     current = with_surface_doubt(current, state.surface_doubt)
     report(progress, 0.97, "leaving each unexplained line out")
-    current, leftover = _with_reach(measurement, options, spacing, current, leftover, cancel)
+    current, leftover, together = _with_reach(
+        measurement, options, spacing, current, leftover, cancel
+    )
+    warnings += [together.warning()] if together else []
     current, leftover = with_scale_doubts(current, leftover, options.alpha)
     report(progress, 1.0, "loop closed")
     rivals = tuple(state.rivals.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
@@ -454,6 +465,7 @@ def _close_loop(
         spacing,
         rivals,
         ranges,
+        together,
     )
 
 

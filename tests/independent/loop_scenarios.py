@@ -856,7 +856,8 @@ def squareness_ratios(result, errors: dict[str, float]) -> dict[str, float]:  # 
 def named_errors(report: dict) -> list[str]:
     """The errors report["unexplained"] names: those an unexplained line moves beyond their
     stated uncertainty when left out, those resting on such a line alone, and the positioning
-    error whose scale such a line reads apart."""
+    error whose scale such a line reads apart; and those the unexplained lines move beyond
+    together (report["moved_together"])."""
     named = {
         eid
         for item in report["unexplained"]
@@ -864,6 +865,7 @@ def named_errors(report: dict) -> list[str]:
         + item.get("rests_on", [])
         + ([item["scale"]["error"]] if "scale" in item else [])
     }
+    named |= {m["error"] for m in report.get("moved_together", {}).get("moves", [])}
     return sorted(named)
 
 
