@@ -55,22 +55,17 @@ LEFT_OUT_SIGMA = 1e4
 class Reach:
     """What leaving one line out does to the errors: the moves beyond their stated uncertainty
     (largest ratio first), the errors that rest on the line alone, and the move of the model's
-    parameters (the widening, zero where nothing moves beyond)."""
+    parameters."""
 
     line: str
     moves: tuple[Move, ...]
     rests_on: tuple[str, ...]
-    #: the parameters without the line minus with it, for the errors that do not rest on it
+    #: the parameters without the line minus with it, for the errors that do not rest on it:
+    #: where an error moves beyond, it widens the errors' covariance in full
     change: FloatArray = field(repr=False)
     #: per error that does not rest on the line: how far it moves (as :attr:`Move.move`) and what
     #: the line's own information adds to its variance
     shifts: dict[str, tuple[float, float]] = field(default_factory=dict, repr=False)
-
-    @property
-    def delta(self) -> FloatArray:
-        """The move that widens the errors' covariance: :attr:`change` where an error moves
-        beyond, zero otherwise."""
-        return self.change if self.moves else np.zeros_like(self.change)
 
     def sentence(self) -> str:
         """What the unexplained entry of the line adds to its description ("" for nothing)."""

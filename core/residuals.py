@@ -290,7 +290,7 @@ def _with_reach(
 
     reach = reach_of_lines(final, [u.line for u in leftover if u.line], refit)
     together = moved_together(final, reach)
-    pulls = [r.delta for r in reach.values() if r.moves]
+    pulls = [r.change for r in reach.values() if r.moves]
     pulls += list(together.deltas) if together else []
     return with_shape_doubt(final, pulls, share=1.0), with_reach(leftover, reach), together
 
