@@ -306,6 +306,11 @@ class Outcome:
     #: unexplained line is left out, resting on such a line alone, or the positioning error whose
     #: scale such a line reads apart (:func:`named_errors`)
     named: list[str] = field(default_factory=list)
+    #: machine effects the loop fitted and refused only because one line alone shows them,
+    #: having bettered the held-out error by the margin (report["unexplained"][].
+    #: one_line_effects), as (kind, where) like :attr:`expected`: what it would have kept
+    #: without that rule (:func:`one_line_refused`)
+    one_line_refused: set[tuple[str, str]] = field(default_factory=set)
 
     @property
     def band_ratio(self) -> float:
@@ -441,6 +446,16 @@ def effect_place(effect: dict) -> tuple[str, str]:
     return effect["kind"], effect["axis"]
 
 
+def one_line_refused(report: dict) -> set[tuple[str, str]]:
+    """The machine effects report["unexplained"] names as fitted to a line and refused only
+    because that line alone shows them, as (kind, where) like :attr:`Scenario.expected`."""
+    return {
+        effect_place(effect)
+        for item in report["unexplained"]
+        for effect in item.get("one_line_effects", [])
+    }
+
+
 def kept_effects(report: dict) -> tuple[set[tuple[str, str]], list[str]]:
     """What the loop kept, as (kind, where) like :attr:`Scenario.expected`, and the kept
     effects whose parameters no real set-up allows (checked here, not by volucal)."""
@@ -507,6 +522,7 @@ def run_scenario(scenario: Scenario, folder: Path | None = None) -> Outcome:
         expected_errors(result),
         error_ratios=ratios,
         named=named_errors(report),
+        one_line_refused=one_line_refused(report),
     )
 
 

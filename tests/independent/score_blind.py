@@ -28,6 +28,7 @@ from loop_scenarios import (
     kept_effects,
     ls_slope,
     named_errors,
+    one_line_refused,
     squareness_errors,
     squareness_ratios,
 )
@@ -282,6 +283,7 @@ def run_blind(seed: int, noise_draw: int = 0, paths: bool = False) -> Outcome:
         path_squareness(seed, truth, result) if paths else {},
         error_ratios=ratios,
         named=named_errors(report),
+        one_line_refused=one_line_refused(report),
     )
 
 
