@@ -110,6 +110,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "independent"))
 
+from loop_scenarios import one_line_refused  # noqa: E402
 from score_blind import run_blind  # noqa: E402
 
 from tests.blind.scenarios import write_scenario  # noqa: E402
@@ -1223,6 +1224,8 @@ def test_a_bump_one_line_alone_shows_is_reported_with_the_effects_that_would_exp
     assert "no effect of the catalogue explains it" not in item["description"]
     assert "only this line shows it" in item["description"]
     assert "a second line that reads the same error there would tell" in item["description"]
+    # the suite counts them as the loop would have kept them without the one-line rule
+    assert one_line_refused(report) == {("local", "X in Y"), ("local", "Y in X")}
 
 
 def test_a_surface_that_explains_its_one_line_but_a_remainder_stays_is_kept() -> None:
