@@ -3,6 +3,7 @@ during the session, where they settle, and what a set-up effect adds of a scale 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import NamedTuple
 
@@ -137,6 +138,31 @@ def scales_in_time(fit: Identification, alpha: float) -> dict[int, tuple[str, fl
                 if found.p < COMBINED_LINE_LEVEL:
                     out.setdefault(index, (axis, combined, found.swing, len(tests)))
     return out
+
+
+def still_changing(
+    fit: Identification, lines: Sequence[int], along: FloatArray, alpha: float
+) -> tuple[list[int], float] | None:
+    """Whether what ``fit`` leaves on ``lines`` follows ``along`` (per reading: a drift's shape
+    in position) times a course in each line's time (:func:`_course`), the lines' tests combined
+    (Fisher) at ``alpha``: the lines that do (each at :data:`COMBINED_LINE_LEVEL` or below, or
+    the strongest) and the combined false-alarm level; None where they do not, or none can tell.
+    """
+    readings = fit.readings
+    tests = []
+    for index in lines:
+        rows = readings.line == index
+        found = _course(fit, index, along[rows], settling=False)
+        if found is not None:
+            tests.append((index, found.p))
+    if not tests:
+        return None
+    statistic = -2.0 * sum(np.log(max(p, 1e-300)) for _, p in tests)
+    combined = float(special.chdtrc(2 * len(tests), statistic))
+    if combined >= alpha:
+        return None
+    showing = [index for index, p in tests if p <= COMBINED_LINE_LEVEL]
+    return showing or [min(tests, key=lambda t: t[1])[0]], combined
 
 
 #: A line of an axis whose lines together follow a course in time (:func:`scales_in_time`)

@@ -14,7 +14,7 @@ from scipy import special
 from .effects import AbbeOffset, Effect, LocalDefect, Reversal, ThermalDrift
 from .identify import BLOCK_MM, CrossValidation, Identification
 from .loop_compare import Fitter, Trial, kept_with, rows_compared
-from .loop_courses import off_course
+from .loop_courses import off_course, still_changing
 from .loop_records import ONE_LINE_CANNOT_TELL, Finding, FloatArray, IntArray, LoopOptions
 from .loop_tester import Tester, fit_metric, in_words, log10_text, rms_over
 from .loop_unexplained import Wander, systematic_lines, wandering_lines, widespread
@@ -89,7 +89,7 @@ def judge(
         wander = wandering_lines(current, options.alpha).get(effect.line_index)
         if wander is not None:
             return refused(_set_up_of_wandering_line(wander), "not repeatable")
-    lonely = _uncorroborated(effect, energy, refit.readings)
+    lonely = _uncorroborated(effect, energy, refit, options.alpha)
     if lonely is not None:
         why, line = lonely
         return refused(why, "one line only", uncorroborated=True, alone_on=line)
@@ -467,7 +467,7 @@ ONE_SHAPE = ("reversal", "cyclic", "thermal_drift", "local", "cross_axis")
 
 
 def _uncorroborated(
-    effect: Effect, energy: FloatArray, readings: Readings
+    effect: Effect, energy: FloatArray, refit: Identification, alpha: float
 ) -> tuple[str, str] | None:
     """Why a machine effect seen by one line only is not kept, and that line ("" where no line
     shows it); or None.
@@ -489,8 +489,17 @@ def _uncorroborated(
     the session's first reading, the later lines would read a scale still on its way, and
     reading nothing of it they do not bear the warm-up out — a course in time within the one
     line (blind 61139, direct plan: an X scale oscillating with a 99 min period, of which
-    x_linear's 25 min read as a drift of τ 365 min with the next line along X at 420 min).
+    x_linear's 25 min read as a drift of τ 365 min with the next line along X at 420 min). Nor
+    may the later lines along the axis read its scale still changing, with the drift in the
+    model: what is left on them follows the drift's shape in position times a course in their
+    own time (:func:`~volucal.core.loop_courses.still_changing`, at the loop's false-alarm
+    level). A warm-up that settled leaves them steady; a scale that swings over the session
+    reads on its axis' first line as a warm-up and on the later ones as the swing it is (blind
+    81144, direct plan: a Y scale oscillating with a 118 min period kept as a drift of Y of
+    146 ppm, τ 105 min, that y_linear alone showed, the diagonals through Y reported
+    unexplained, following time).
     """
+    readings = refit.readings
     drift_in_time = isinstance(effect, ThermalDrift) and effect.mode == "time"
     if effect.kind not in NEEDS_TWO_LINES and not drift_in_time:
         return None
@@ -503,6 +512,7 @@ def _uncorroborated(
         and showing.size == 1
         and int(showing[0]) == earliest_along(effect.axis, readings)
         and _settled_before_the_next(effect, int(showing[0]), readings)
+        and not _still_changing_after(effect, int(showing[0]), refit, alpha)
     ):
         return None
     where = readings.lines[int(np.argmax(energy))].name
@@ -517,6 +527,20 @@ def _uncorroborated(
 #: line along that axis starts this many time constants or more after the session's first
 #: reading (e⁻³: 95 % of its way).
 SETTLED_TAUS = 3.0
+
+
+def _still_changing_after(
+    drift: ThermalDrift, earliest: int, refit: Identification, alpha: float
+) -> bool:
+    """Whether the linear lines along ``drift``'s axis started after the ``earliest`` read its
+    scale still changing in time beyond ``refit``, which holds the drift
+    (:func:`~volucal.core.loop_courses.still_changing`)."""
+    readings = refit.readings
+    first = _started(earliest, readings)
+    later = [
+        i for i in _linear_lines_along(drift.axis, readings) if _started(i, readings) > first
+    ]
+    return still_changing(refit, later, drift.along(readings), alpha) is not None
 
 
 def _linear_lines_along(axis: str, readings: Readings) -> list[int]:
