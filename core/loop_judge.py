@@ -506,19 +506,21 @@ def _uncorroborated(
     showing = np.flatnonzero(energy >= SHOWN_SIGMA2)
     if showing.size >= 2:
         return None
+    changing = ""
     if (
         isinstance(effect, ThermalDrift)
         and drift_in_time
         and showing.size == 1
         and int(showing[0]) == earliest_along(effect.axis, readings)
         and _settled_before_the_next(effect, int(showing[0]), readings)
-        and not _still_changing_after(effect, int(showing[0]), refit, alpha)
     ):
-        return None
+        changing = _still_changing_after(effect, int(showing[0]), refit, alpha)
+        if not changing:
+            return None
     where = readings.lines[int(np.argmax(energy))].name
     return (
-        f"only line {where} shows it beyond what the 21 errors absorb: {ONE_LINE_CANNOT_TELL}; "
-        "refused",
+        f"only line {where} shows it beyond what the 21 errors absorb: {ONE_LINE_CANNOT_TELL}"
+        f"{changing}; refused",
         where if showing.size == 1 else "",
     )
 
@@ -531,16 +533,27 @@ SETTLED_TAUS = 3.0
 
 def _still_changing_after(
     drift: ThermalDrift, earliest: int, refit: Identification, alpha: float
-) -> bool:
-    """Whether the linear lines along ``drift``'s axis started after the ``earliest`` read its
+) -> str:
+    """Where the linear lines along ``drift``'s axis started after the ``earliest`` read its
     scale still changing in time beyond ``refit``, which holds the drift
-    (:func:`~volucal.core.loop_courses.still_changing`)."""
+    (:func:`~volucal.core.loop_courses.still_changing`): the clause that says so ("" where they
+    do not)."""
     readings = refit.readings
     first = _started(earliest, readings)
     later = [
         i for i in _linear_lines_along(drift.axis, readings) if _started(i, readings) > first
     ]
-    return still_changing(refit, later, drift.along(readings), alpha) is not None
+    found = still_changing(refit, later, drift.along(readings), alpha)
+    if found is None:
+        return ""
+    lines, p = found
+    names = in_words([readings.lines[i].name for i in lines])
+    return (
+        f"; nor is it a warm-up that settled: with it in the model, the later "
+        f"line{'s' if len(lines) > 1 else ''} along {drift.axis}, {names}, still "
+        f"read{'' if len(lines) > 1 else 's'} the scale changing in time "
+        f"(log10 false alarm {log10_text(p)})"
+    )
 
 
 def _linear_lines_along(axis: str, readings: Readings) -> list[int]:
