@@ -131,8 +131,7 @@ def scales_in_time(fit: Identification, alpha: float) -> dict[int, tuple[str, fl
         if found.p * len(alone) < alpha:
             out[index] = (axis, found.p, found.swing, 1)
     for axis, tests in by_axis.items():
-        statistic = -2.0 * sum(np.log(max(found.p, 1e-300)) for _, found in tests)
-        combined = float(special.chdtrc(2 * len(tests), statistic))
+        combined = _fisher([found.p for _, found in tests])
         if combined * len(by_axis) < alpha:
             for index, found in tests:
                 if found.p < COMBINED_LINE_LEVEL:
@@ -157,12 +156,17 @@ def still_changing(
             tests.append((index, found.p))
     if not tests:
         return None
-    statistic = -2.0 * sum(np.log(max(p, 1e-300)) for _, p in tests)
-    combined = float(special.chdtrc(2 * len(tests), statistic))
+    combined = _fisher([p for _, p in tests])
     if combined >= alpha:
         return None
     showing = [index for index, p in tests if p <= COMBINED_LINE_LEVEL]
     return showing or [min(tests, key=lambda t: t[1])[0]], combined
+
+
+def _fisher(levels: Sequence[float]) -> float:
+    """The false-alarm level of independent tests' ``levels`` together (Fisher's method)."""
+    statistic = -2.0 * sum(np.log(max(p, 1e-300)) for p in levels)
+    return float(special.chdtrc(2 * len(levels), statistic))
 
 
 #: A line of an axis whose lines together follow a course in time (:func:`scales_in_time`)

@@ -540,9 +540,7 @@ def _still_changing_after(
     do not)."""
     readings = refit.readings
     first = _started(earliest, readings)
-    later = [
-        i for i in _linear_lines_along(drift.axis, readings) if _started(i, readings) > first
-    ]
+    later = [i for i in _linear_lines_along(drift.axis, readings) if _started(i, readings) > first]
     found = still_changing(refit, later, drift.along(readings), alpha)
     if found is None:
         return ""
