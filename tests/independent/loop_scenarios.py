@@ -308,8 +308,8 @@ class Outcome:
     named: list[str] = field(default_factory=list)
     #: machine effects the loop fitted and refused only because one line alone shows them,
     #: having bettered the held-out error by the margin (report["unexplained"][].
-    #: one_line_effects), as (kind, where) like :attr:`expected`: what it would have kept
-    #: without that rule (:func:`one_line_refused`)
+    #: one_line_effects), as (kind, where) like :attr:`expected`: what that rule kept out, of
+    #: which a later test might have refused some too (:func:`one_line_refused`)
     one_line_refused: set[tuple[str, str]] = field(default_factory=set)
 
     @property
