@@ -539,8 +539,7 @@ def _still_changing_after(
     (:func:`~volucal.core.loop_courses.still_changing`): the clause that says so ("" where they
     do not)."""
     readings = refit.readings
-    first = _started(earliest, readings)
-    later = [i for i in _linear_lines_along(drift.axis, readings) if _started(i, readings) > first]
+    later = _later_along(drift.axis, earliest, readings)
     found = still_changing(refit, later, drift.along(readings), alpha)
     if found is None:
         return ""
@@ -581,10 +580,14 @@ def _settled_before_the_next(drift: ThermalDrift, earliest: int, readings: Readi
     """Whether ``drift``, shown by the ``earliest`` line along its axis alone, has run
     :data:`SETTLED_TAUS` time constants before the next linear line along that axis starts
     (true where no other line moves the axis: none could read it)."""
-    first = _started(earliest, readings)
-    starts = [_started(i, readings) for i in _linear_lines_along(drift.axis, readings)]
-    later = [t for t in starts if t > first]
+    later = [_started(i, readings) for i in _later_along(drift.axis, earliest, readings)]
     return not later or min(later) >= SETTLED_TAUS * drift.time_constant_s
+
+
+def _later_along(axis: str, earliest: int, readings: Readings) -> list[int]:
+    """The linear lines along ``axis`` started after the ``earliest`` one."""
+    first = _started(earliest, readings)
+    return [i for i in _linear_lines_along(axis, readings) if _started(i, readings) > first]
 
 
 def held_out_gain_per_line(
