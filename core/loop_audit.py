@@ -25,6 +25,7 @@ from .loop_judge import (
     gained_through_lines_it_leaves,
     held_out_gain_per_line,
     implausible_fitted,
+    scale_still_changing,
     unequal,
 )
 from .loop_records import LoopOptions, Step
@@ -56,7 +57,9 @@ def audit(
     slice of its own: how well each slice fits is the cross-validation's question. A low-order
     surface over two axes couples the lines that cross it: fitted to something that is not a
     surface (a scale that oscillates in time, read as depending on where each line lies), its
-    fitted values fit some lines at twice the size and others at none."""
+    fitted values fit some lines at twice the size and others at none. A drift fitted in time
+    must leave the lines along its axis steady
+    (:func:`~volucal.core.loop_judge.scale_still_changing`)."""
     read_again: set[str] = set()
     while kept:
         failures = []
@@ -105,6 +108,11 @@ def audit(
                 continue
             if effect.kind not in ONE_SHAPE:
                 continue
+            if isinstance(effect, ThermalDrift) and effect.mode == "time":
+                why = scale_still_changing(effect, current, options.alpha)
+                if why is not None:
+                    failures.append((1, np.inf, effect, why))
+                    continue
             if isinstance(effect, CrossAxis) and unsteady:
                 why = _scales_instead(fit, current, effect, kept, base, unsteady, options.alpha)
                 if why is not None:
