@@ -569,7 +569,7 @@ def _moved_with_a_changing_axis(
     there; the first line along one axis is the other's evidence as much. It is that axis'
     warm-up only where the other's own lines read their scale steady (blind 81051, direct plan:
     the X scale oscillating over the session; diag_xz_pp, the first line along Z, alone showed
-    it and it was kept as a warm-up of Z of 63 ppm, while x_linear and diag_xy_pp read the X
+    it and it was kept as a warm-up of Z of −63 ppm, while x_linear and diag_xy_pp read the X
     scale changing, log10 false alarm −48)."""
     readings = refit.readings
     direction = readings.lines[showing].spec.direction
@@ -577,7 +577,8 @@ def _moved_with_a_changing_axis(
         if axis == drift.axis or abs(direction[k]) <= 1e-6:
             continue
         others = [i for i in _linear_lines_along(axis, readings) if i != showing]
-        along = ThermalDrift(axis_name=axis, mode="time").along(readings)
+        rival = ThermalDrift(axis, "time", reference_mm=refit.model.machine.reference(axis))
+        along = rival.along(readings)
         found = still_changing(refit, others, along, alpha)
         if found is not None:
             lines, p = found
