@@ -15,6 +15,7 @@ from .effects import AbbeOffset, Effect, LocalDefect, Reversal, ThermalDrift
 from .identify import BLOCK_MM, CrossValidation, Identification
 from .loop_compare import Fitter, Trial, kept_with, rows_compared
 from .loop_courses import off_course, still_changing
+from .loop_periodic import PeriodicInTime, periodic_in_time
 from .loop_records import ONE_LINE_CANNOT_TELL, Finding, FloatArray, IntArray, LoopOptions
 from .loop_tester import Tester, fit_metric, in_words, log10_text, rms_over
 from .loop_unexplained import Wander, systematic_lines, wandering_lines, widespread
@@ -85,10 +86,13 @@ def judge(
     null = indistinguishable_from_nothing(values, covariance)
     if null is not None:
         return refused(null, "not confirmed")
+    periodic = periodic_in_time(current, options.alpha)
     if effect.line_index is not None:
         wander = wandering_lines(current, options.alpha).get(effect.line_index)
         if wander is not None:
             return refused(_set_up_of_wandering_line(wander), "not repeatable")
+        if periodic is not None and effect.line_index in periodic.lines:
+            return refused(_set_up_of_periodic_line(periodic), "not repeatable")
     lonely = _uncorroborated(effect, energy, refit, options.alpha)
     if lonely is not None:
         why, line = lonely
@@ -99,7 +103,7 @@ def judge(
     if effect.kind in NEEDS_TWO_LINES:
         per_line = held_out_gain_per_line(tester, cv, cv_new, rows)
         unsteady = _gained_on_wandering_lines(
-            wandering_lines(current, options.alpha), per_line, current.readings
+            wandering_lines(current, options.alpha), per_line, current.readings, periodic
         )
         if unsteady is not None:
             return refused(unsteady, "not repeatable")
@@ -677,11 +681,15 @@ def held_out_gain_per_line(
 
 
 def _gained_on_wandering_lines(
-    wandering: dict[int, Wander], per_line: FloatArray, readings: Readings
+    wandering: dict[int, Wander],
+    per_line: FloatArray,
+    readings: Readings,
+    periodic: PeriodicInTime | None = None,
 ) -> str | None:
     """Why a shape in position (a local defect, a finer function, a surface) whose held-out gain
     (``per_line``, :func:`held_out_gain_per_line`) comes mostly from lines that repeat far worse
-    than their peers is not kept, or None.
+    than their peers, or that an error periodic in time changes from run to run, is not kept,
+    or None.
 
     Such a line (:func:`wandering_lines`) holds, in its per-target means, what changed between its
     runs: an error periodic in time that keeps step with the runs leaves a shape there that is
@@ -689,21 +697,26 @@ def _gained_on_wandering_lines(
     by anything, and held-out blocks of the same runs confirm it (blind 42119: a 2.5 µm Z error
     periodic in time, 107 s, on the direct plan; seven lines repeat 3–8 times worse than their
     peers and a surface EX over X×Z of order 8 was kept, 9.6 % better held out, 92 % of it on
-    those seven). When :data:`WANDERING_SHARE` or more of what the held-out readings gain with
-    the shape is on such lines, it is refused as not repeatable. A drift in time is not asked:
+    those seven). An error periodic in time found as such (:func:`periodic_in_time`) marks
+    every line it acts on, however well that line repeats beside its peers. When
+    :data:`WANDERING_SHARE` or more of what the held-out readings gain with the shape is on such
+    lines, it is refused as not repeatable. A drift in time is not asked:
     a drift still missing is what makes its own lines wander. Refused for what the rest may
     spoil, it is refitted once another effect is kept."""
     total = float(per_line.sum())
-    if not wandering or total <= 0.0:
+    unsteady = sorted(set(wandering) | set(periodic.lines if periodic is not None else ()))
+    if not unsteady or total <= 0.0:
         return None
-    unsteady = sorted(wandering)
     share = float(per_line[unsteady].sum()) / total
     if share < WANDERING_SHARE:
         return None
     names = ", ".join(readings.lines[i].name for i in unsteady)
+    which = "lines that repeat far worse than their peers"
+    if periodic is not None and set(periodic.lines) & set(unsteady):
+        which += f" or that {_periodic_words(periodic)} changes from run to run"
     return (
         f"not repeatable: {100 * share:.0f} % of what the held-out readings gain with it is on "
-        f"lines that repeat far worse than their peers ({names}): what changes between runs "
+        f"{which} ({names}): what changes between runs "
         "leaves a shape in their per-target means that a shape in position fits as well; refused"
     )
 
@@ -938,6 +951,26 @@ def _set_up_of_wandering_line(wander: Wander) -> str:
         f"{wander.unit} (F test, log10 false alarm "
         f"{log10_text(wander.p)}): a set-up fitted to readings that change between runs "
         "cannot be told from their change; refused"
+    )
+
+
+def _periodic_words(periodic: PeriodicInTime) -> str:
+    """An error periodic in time in words: its direction, amplitude and period."""
+    return (
+        f"an error periodic in time ({periodic.amplitude_um:.2g} µm along {periodic.axis}, "
+        f"period {periodic.period_s:.0f} s, log10 false alarm {log10_text(periodic.p)})"
+    )
+
+
+def _set_up_of_periodic_line(periodic: PeriodicInTime) -> str:
+    """Why a set-up effect of a line that an error periodic in time acts on
+    (:func:`periodic_in_time`) is refused: what the error leaves in the line's per-target means
+    keeps step with the runs, as :func:`_set_up_of_wandering_line` says, however well the line
+    repeats beside its peers (blind 83031: a 1.1 µm Y error of period 75 s, y_linear repeating
+    1.5 times worse than its steadiest peers, kept as an Abbe offset of 90 mm of it)."""
+    return (
+        f"not repeatable: {_periodic_words(periodic)} changes its line's readings from run to "
+        "run: a set-up fitted to them cannot be told from what it leaves; refused"
     )
 
 

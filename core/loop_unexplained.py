@@ -13,6 +13,7 @@ from scipy import special
 from .identify import CrossValidation, Identification
 from .loop_compare import predicted_rows
 from .loop_courses import cell_centred, moving_one_axis, scales_in_time, unsteady_scales
+from .loop_periodic import periodic_in_time
 from .loop_records import (
     ONE_LINE_CANNOT_TELL,
     EffectKey,
@@ -36,7 +37,45 @@ def unexplained(
     by_line = dict(unexplained_by_line(identification, cross_validation, alpha))
     jumps = _jumps(identification, alpha, set(by_line))
     found = [jumps.pop(index, item) for index, item in by_line.items()]
-    return found + list(jumps.values()) + _scales_apart(identification, alpha)
+    return (
+        found
+        + list(jumps.values())
+        + _scales_apart(identification, alpha)
+        + _periodic(identification, alpha)
+    )
+
+
+def _periodic(identification: Identification, alpha: float) -> list[Unexplained]:
+    """An error periodic in time along one machine direction (:func:`periodic_in_time`), with
+    the lines it acts on: no effect of the catalogue is one."""
+    found = periodic_in_time(identification, alpha)
+    if found is None:
+        return []
+    readings = identification.readings
+    names = ", ".join(
+        f"{readings.lines[i].name} {found.lines[i]:.2g} µm" for i in sorted(found.lines)
+    )
+    shortest, longest = found.searched_s
+    return [
+        Unexplained(
+            where=f"along {found.axis}, periodic in time",
+            description=(
+                f"the readings of {len(found.lines)} lines change from run to run as one error "
+                f"periodic in the session's time: {found.amplitude_um:.2g} µm along "
+                f"{found.axis}, period {found.period_s:.0f} s (periods of {shortest:.0f} to "
+                f"{longest:.0f} s searched in what the lines leave about their targets' means "
+                f"and a smooth course in time of each; F test, log10 false alarm "
+                f"{log10_text(found.p)}); one sinusoid of the session takes "
+                f"{100 * found.coherent:.0f} % of what each line's own takes. What it changes "
+                f"on each line, RMS: {names}. No effect of the catalogue is an error in time (a "
+                "hydraulic unit, a chiller or an air conditioning that cycles); no set-up of "
+                "those lines, nor a shape in position mostly on them, is kept in its place"
+            ),
+            magnitude_um=found.amplitude_um,
+            correlates_with={"time": found.share},
+            axis=found.axis,
+        )
+    ]
 
 
 class _Jump(NamedTuple):

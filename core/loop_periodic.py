@@ -1,0 +1,272 @@
+"""An error periodic in time along one machine direction (docs/method.md §3, "An error
+periodic in time, found as such").
+
+A hydraulic unit, a coolant chiller or an air conditioning that cycles moves the tool against
+the workpiece with a period of minutes, whatever the axes' positions. No effect of the
+catalogue is such an error: it is reported unexplained, never kept. But it changes every
+line that reads its direction from run to run, and what it leaves in a line's per-target means
+is a shape the line's timing gives it, which a set-up of that line or a shape in position fits
+as well as anything (blind 83031: a 1.1 µm Y error of period 75 s kept as a 90 mm Abbe offset
+of y_linear). Found, the lines it acts on are treated as lines that repeat far worse than
+their peers (:func:`~volucal.core.loop_judge.judge`).
+
+The search uses what the model leaves about each line's per-target, per-direction means, less
+a smooth course in time of each line (an offset and a scale, linear and quadratic in the
+line's time: a drift the model lacks, or a settling set-up): no effect in position or of the
+approach direction, nor a slow drift, takes part in it. A sinusoid in the session's time along
+direction d reads ``p_d (a cos ωt + b sin ωt)`` on a displacement reading whose beam or
+deviation direction is p; its fit over every line that reads d (one amplitude and phase for
+the session) is held to an F test against what is left, Bonferroni over the independent
+periods searched and the three directions. A wandering laser or reflector, a beam re-zeroed,
+also leave run-to-run changes, which line by line a sinusoid fits in part; they fit no one
+sinusoid of the session, line after line: the session's sinusoid must take
+:data:`COHERENT_SHARE` or more of what each line's own sinusoid (its own amplitude and phase, the
+same period) takes together, and the lines it acts on must move in :data:`MOVING_APART`
+directions or more.
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import sparse, special
+
+from .identify import Identification
+from .loop_records import FloatArray, IntArray
+from .loop_tester import cell_key
+from .machine import AXES
+from .readings import Readings
+
+#: The session's sinusoid must take this share of what each line's own sinusoid takes.
+COHERENT_SHARE = 0.9
+#: The shortest period searched, in median intervals between a line's readings.
+SHORTEST_IN_INTERVALS = 3.0
+#: The longest period searched, as a share of the median line's duration: longer, a period
+#: is a course in time within a line, which the smooth course takes.
+LONGEST_IN_LINES = 0.5
+#: A line it acts on shows it with this energy (σ²) or more, what it changes from run to run.
+SHOWN_SIGMA2 = 16.0
+#: An error of the machine along one direction reads on every line that reads that direction,
+#: whichever way it moves: the lines it acts on move in this many directions or more (a laser
+#: that wanders on each line, three parallel lines of the twelve-line plan measured at other
+#: times, can line up with one sinusoid by chance; blind 53079: 92 % at 287 s on y_lin_1–3, the
+#: diagonals that read Y showing nothing of it).
+MOVING_APART = 2
+#: Periods of the coarse search (each line's own sinusoid) refined for the session's one.
+REFINED = 3
+#: Frequencies per chunk of the search (memory).
+CHUNK = 256
+
+
+@dataclass(frozen=True)
+class PeriodicInTime:
+    """An error periodic in time along one machine direction (:func:`periodic_in_time`)."""
+
+    axis: str
+    period_s: float
+    #: its amplitude (µm) along the axis
+    amplitude_um: float
+    #: false-alarm level, Bonferroni over the periods and the directions searched
+    p: float
+    #: what the session's sinusoid takes of what each line's own sinusoid takes together
+    coherent: float
+    #: the periods searched (s)
+    searched_s: tuple[float, float]
+    #: what it takes of what the lines along its axis leave about their cells' means and
+    #: smooth courses
+    share: float
+    #: per line it acts on (by index): what it changes there from run to run (RMS, µm)
+    lines: dict[int, float]
+
+
+@dataclass(frozen=True)
+class _Line:
+    """One line's readings along a direction, and the projector that takes out its cells'
+    means and its smooth course in time."""
+
+    rows: IntArray
+    #: per reading, its cell (target and approach direction), and the cells' reading counts
+    cells: IntArray
+    counts: FloatArray
+    #: orthonormal columns: the smooth course in time, its cells' means taken out
+    course: FloatArray
+    weight: float  # 1/σ² of its readings
+
+    @property
+    def free(self) -> int:
+        """The readings' degrees of freedom beside the cells' means and the course."""
+        return int(self.rows.size - self.counts.size - self.course.shape[1])
+
+    def centred(self, values: FloatArray) -> FloatArray:
+        """``values`` (rows × k) less their means over each cell."""
+        members = sparse.csr_matrix(
+            (1.0 / self.counts[self.cells], (self.cells, np.arange(self.cells.size))),
+            shape=(self.counts.size, self.cells.size),
+        )
+        return values - np.asarray(members @ values)[self.cells]
+
+    def project(self, values: FloatArray) -> FloatArray:
+        """``values`` (rows × k) less their part in the line's cells and course (the course
+        columns are centred in the cells, so the two parts are orthogonal)."""
+        centred = self.centred(values)
+        return centred - self.course @ (self.course.T @ centred)
+
+
+def _lines_along(readings: Readings, k: int, usable: NDArray[np.bool_]) -> list[_Line]:
+    """The lines that read direction ``k`` (their usable displacement readings)."""
+    out = []
+    for index in range(len(readings.lines)):
+        rows = np.flatnonzero((readings.line == index) & usable)
+        if rows.size < 8 or abs(float(readings.projection[rows[0], k])) <= 1e-6:
+            continue
+        time = readings.time_s[rows]
+        if np.ptp(time) <= 0:
+            continue
+        of_line = usable[readings.line == index]
+        _, cells = np.unique(cell_key(readings, index)[of_line], return_inverse=True)
+        counts = np.bincount(cells).astype(float)
+        t = (time - time.mean()) / np.ptp(time)
+        s = readings.target_mm[rows]
+        s = (s - s.mean()) / (np.ptp(s) or 1.0)
+        line = _Line(rows, cells, counts, np.zeros((rows.size, 0)), 0.0)
+        course = line.centred(np.column_stack([t, t * t, t * s, t * t * s]))
+        u, singular, _ = np.linalg.svd(course, full_matrices=False)
+        if singular.size == 0 or singular.max() <= 0:
+            continue
+        course = u[:, singular > 1e-9 * singular.max()]
+        sigma = float(np.median(readings.sigma[rows]))
+        line = _Line(rows, cells, counts, course, 1.0 / sigma**2)
+        if line.free > 2:
+            out.append(line)
+    return out
+
+
+def _sums(
+    lines: list[_Line], readings: Readings, k: int, rest: list[FloatArray], frequencies: FloatArray
+) -> FloatArray:
+    """Per line and frequency, the weighted normal sums of the cosine and sine columns and of
+    their products with the rest: (lines, 5, frequencies) as cc, ss, cs, cr, sr."""
+    out = np.empty((len(lines), 5, frequencies.size))
+    for j, line in enumerate(lines):
+        phase = 2.0 * np.pi * np.outer(readings.time_s[line.rows], frequencies)
+        p = readings.projection[line.rows, k][:, None]
+        c = line.project(p * np.cos(phase))
+        s = line.project(p * np.sin(phase))
+        r = rest[j]
+        out[j] = line.weight * np.stack(
+            [np.sum(c * c, 0), np.sum(s * s, 0), np.sum(c * s, 0), r @ c, r @ s]
+        )
+    return out
+
+
+def _gain(sums: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """From normal sums (…, 5, f): the sum of squares a sinusoid takes, and its a and b."""
+    cc, ss, cs, cr, sr = (sums[..., i, :] for i in range(5))
+    det = cc * ss - cs * cs
+    ok = det > 1e-9 * np.maximum(cc * ss, 1e-300)
+    safe = np.where(ok, det, 1.0)
+    a = np.where(ok, (ss * cr - cs * sr) / safe, 0.0)
+    b = np.where(ok, (cc * sr - cs * cr) / safe, 0.0)
+    return a * cr + b * sr, a, b
+
+
+_FOUND: dict[tuple[int, float], tuple[weakref.ref[Readings], PeriodicInTime | None]] = {}
+
+
+def periodic_in_time(identification: Identification, alpha: float) -> PeriodicInTime | None:
+    """The strongest error periodic in time along one machine direction that ``identification``
+    leaves, where its false-alarm level is below ``alpha`` and it is one sinusoid of the
+    session (:data:`COHERENT_SHARE`); else None.
+
+    Searched once per set of readings, on the first fit that asks (the loop's 21-error fit):
+    what it is searched in, the readings about their cells' means less each line's smooth
+    course in time, no effect of the catalogue changes (a shape in position, a reversal, a
+    set-up's scale or lever arm are the same in every run; a drift is a smooth course)."""
+    key = (id(identification.readings), alpha)
+    known = _FOUND.get(key)
+    if known is not None and known[0]() is identification.readings:
+        return known[1]
+    found = _search(identification, alpha)
+    for stale in [k for k, (ref, _) in _FOUND.items() if ref() is None]:
+        del _FOUND[stale]
+    _FOUND[key] = (weakref.ref(identification.readings), found)
+    return found
+
+
+def _search(identification: Identification, alpha: float) -> PeriodicInTime | None:
+    readings = identification.readings
+    residual = identification.residual
+    usable = ~readings.is_angular & np.isfinite(residual)
+    spacing, duration = [], []
+    for index in range(len(readings.lines)):
+        time = np.sort(readings.time_s[readings.line == index])
+        if time.size > 2:
+            spacing.append(float(np.median(np.diff(time))))
+            duration.append(float(time[-1] - time[0]))
+    if not duration:
+        return None
+    shortest = SHORTEST_IN_INTERVALS * float(np.median(spacing))
+    longest = LONGEST_IN_LINES * float(np.median(duration))
+    session = float(np.ptp(readings.time_s))
+    if shortest <= 0 or longest <= 2 * shortest or session <= 0:
+        return None
+    coarse = np.arange(1.0 / longest, 1.0 / shortest, 1.0 / (4.0 * float(np.median(duration))))
+    independent = len(AXES) * session * (1.0 / shortest - 1.0 / longest)
+    best: PeriodicInTime | None = None
+    best_f = 0.0
+    for k, axis in enumerate(AXES):
+        lines = _lines_along(readings, k, usable)
+        if len(lines) < 2:
+            continue
+        rest = [line.project(residual[line.rows][:, None])[:, 0] for line in lines]
+        chi0 = sum(line.weight * float(r @ r) for line, r in zip(lines, rest, strict=True))
+        dof = sum(line.free for line in lines) - 2
+        own = np.concatenate(
+            [
+                _gain(_sums(lines, readings, k, rest, coarse[i : i + CHUNK]))[0].sum(0)
+                for i in range(0, coarse.size, CHUNK)
+            ]
+        )
+        step = coarse[1] - coarse[0] if coarse.size > 1 else coarse[0]
+        for i in np.argsort(own)[::-1][:REFINED]:
+            fine = np.arange(coarse[i] - step, coarse[i] + step, 1.0 / (4.0 * session))
+            fine = fine[fine > 0]
+            sums = _sums(lines, readings, k, rest, fine)
+            together, a, b = _gain(sums.sum(0))
+            j = int(np.argmax(together))
+            f = (together[j] / 2.0) / max((chi0 - together[j]) / dof, 1e-300)
+            if f <= best_f:
+                continue
+            p = float(special.fdtrc(2, dof, f)) * independent
+            apart = float(_gain(sums[:, :, j : j + 1])[0].sum())
+            coherent = float(together[j]) / apart if apart > 0 else 0.0
+            if p >= alpha or coherent < COHERENT_SHARE:
+                continue
+            shown = {}
+            for line in lines:
+                phase = 2.0 * np.pi * fine[j] * readings.time_s[line.rows]
+                p_k = readings.projection[line.rows, k]
+                fitted = line.project(
+                    (p_k * (a[j] * np.cos(phase) + b[j] * np.sin(phase)))[:, None]
+                )[:, 0]
+                if line.weight * float(fitted @ fitted) >= SHOWN_SIGMA2:
+                    index = int(readings.line[line.rows[0]])
+                    shown[index] = float(np.sqrt(np.mean(fitted**2)))
+            travels = {tuple(np.round(readings.lines[i].spec.direction, 6)) for i in shown}
+            if len(travels) < MOVING_APART:
+                continue
+            best_f = f
+            best = PeriodicInTime(
+                axis,
+                1.0 / float(fine[j]),
+                float(np.hypot(a[j], b[j])),
+                p,
+                coherent,
+                (shortest, longest),
+                float(together[j]) / chi0 if chi0 > 0 else 0.0,
+                shown,
+            )
+    return best
