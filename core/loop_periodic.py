@@ -197,6 +197,7 @@ def periodic_in_time(identification: Identification, alpha: float) -> PeriodicIn
 
 
 def _search(identification: Identification, alpha: float) -> PeriodicInTime | None:
+    """The search of :func:`periodic_in_time`, without remembering it."""
     readings = identification.readings
     residual = identification.residual
     usable = ~readings.is_angular & np.isfinite(residual)
@@ -211,6 +212,8 @@ def _search(identification: Identification, alpha: float) -> PeriodicInTime | No
     shortest = SHORTEST_IN_INTERVALS * float(np.median(spacing))
     longest = LONGEST_IN_LINES * float(np.median(duration))
     session = float(np.ptp(readings.time_s))
+    if not np.isfinite([shortest, longest, session]).all():
+        return None
     if shortest <= 0 or longest <= 2 * shortest or session <= 0:
         return None
     coarse = np.arange(1.0 / longest, 1.0 / shortest, 1.0 / (4.0 * float(np.median(duration))))
@@ -224,6 +227,8 @@ def _search(identification: Identification, alpha: float) -> PeriodicInTime | No
         rest = [line.project(residual[line.rows][:, None])[:, 0] for line in lines]
         chi0 = sum(line.weight * float(r @ r) for line, r in zip(lines, rest, strict=True))
         dof = sum(line.free for line in lines) - 2
+        if dof <= 2 * len(lines):
+            continue  # too few readings beside the cells' means to hold any period to
         own = np.concatenate(
             [
                 _gain(_sums(lines, readings, k, rest, coarse[i : i + CHUNK]))[0].sum(0)
