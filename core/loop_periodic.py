@@ -88,9 +88,10 @@ class _Line:
     means and its smooth course in time."""
 
     rows: IntArray
-    #: per reading, its cell (target and approach direction), and the cells' reading counts
+    #: per reading, its cell (target and approach direction)
     cells: IntArray
-    counts: FloatArray
+    #: (cells × readings) the cells' means of a column of the line's readings
+    means: sparse.csr_matrix
     #: orthonormal columns: the smooth course in time, its cells' means taken out
     course: FloatArray
     weight: float  # 1/σ² of its readings
@@ -98,21 +99,18 @@ class _Line:
     @property
     def free(self) -> int:
         """The readings' degrees of freedom beside the cells' means and the course."""
-        return int(self.rows.size - self.counts.size - self.course.shape[1])
-
-    def centred(self, values: FloatArray) -> FloatArray:
-        """``values`` (rows × k) less their means over each cell."""
-        members = sparse.csr_matrix(
-            (1.0 / self.counts[self.cells], (self.cells, np.arange(self.cells.size))),
-            shape=(self.counts.size, self.cells.size),
-        )
-        return values - np.asarray(members @ values)[self.cells]
+        return int(self.rows.size - self.means.shape[0] - self.course.shape[1])
 
     def project(self, values: FloatArray) -> FloatArray:
         """``values`` (rows × k) less their part in the line's cells and course (the course
         columns are centred in the cells, so the two parts are orthogonal)."""
-        centred = self.centred(values)
+        centred = _centred(self.means, self.cells, values)
         return centred - self.course @ (self.course.T @ centred)
+
+
+def _centred(means: sparse.csr_matrix, cells: IntArray, values: FloatArray) -> FloatArray:
+    """``values`` (rows × k) less their means over each cell."""
+    return values - np.asarray(means @ values)[cells]
 
 
 def _lines_along(readings: Readings, k: int, usable: NDArray[np.bool_]) -> list[_Line]:
@@ -128,17 +126,18 @@ def _lines_along(readings: Readings, k: int, usable: NDArray[np.bool_]) -> list[
         of_line = usable[readings.line == index]
         _, cells = np.unique(cell_key(readings, index)[of_line], return_inverse=True)
         counts = np.bincount(cells).astype(float)
+        means = sparse.csr_matrix(
+            (1.0 / counts[cells], (cells, np.arange(cells.size))), shape=(counts.size, cells.size)
+        )
         t = (time - time.mean()) / np.ptp(time)
         s = readings.target_mm[rows]
         s = (s - s.mean()) / (np.ptp(s) or 1.0)
-        line = _Line(rows, cells, counts, np.zeros((rows.size, 0)), 0.0)
-        course = line.centred(np.column_stack([t, t * t, t * s, t * t * s]))
+        course = _centred(means, cells, np.column_stack([t, t * t, t * s, t * t * s]))
         u, singular, _ = np.linalg.svd(course, full_matrices=False)
         if singular.size == 0 or singular.max() <= 0:
             continue
-        course = u[:, singular > 1e-9 * singular.max()]
         sigma = float(np.median(readings.sigma[rows]))
-        line = _Line(rows, cells, counts, course, 1.0 / sigma**2)
+        line = _Line(rows, cells, means, u[:, singular > 1e-9 * singular.max()], 1.0 / sigma**2)
         if line.free > 2:
             out.append(line)
     return out
