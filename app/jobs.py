@@ -9,7 +9,7 @@ from __future__ import annotations
 import hashlib
 import shutil
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -27,9 +27,11 @@ from volucal.core.identify import (
     cross_validate,
     identify,
 )
+from volucal.core.loop_periodic import reported_taken_out
 from volucal.core.measurement import Measurement
 from volucal.core.progress import CancelToken, ProgressCallback, check, report
 from volucal.core.project import Project
+from volucal.core.readings import flatten
 from volucal.core.residuals import LoopOptions, LoopResult, close_loop
 from volucal.core.resources import demo_plan
 from volucal.core.result_trees import loop_result_trees, stored_source
@@ -165,12 +167,18 @@ def refit_with_effects(
     progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
     name: str = "loop",
+    periodic: Mapping[str, Any] | None = None,
 ) -> Refit:
     """Identify again with exactly ``effects`` (the loop's refit: no redundancy analysis, the
-    previous model as the linearisation point) and cross-validate as the loop does."""
+    previous model as the linearisation point) and cross-validate as the loop does; of the
+    readings less the error periodic in time the loop took out of them (``periodic``, its
+    report entry ``unexplained[].periodic``), where it took one out."""
     refit_options = replace(options, redundancy=False, max_iterations=3)
+    readings = flatten(measurement)
+    if periodic is not None:
+        readings = reported_taken_out(readings, periodic)
     result = identify(measurement, refit_options, effects=list(effects), progress=_sub(
-        progress, 0.0, 0.8), cancel=cancel, initial=initial)
+        progress, 0.0, 0.8), cancel=cancel, initial=initial, readings=readings)
     check(cancel)
     report(progress, 0.85, "cross-validating")
     cv = cross_validate(result.system, result.readings, list(redundant_lines))

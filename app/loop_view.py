@@ -220,10 +220,13 @@ class LoopView(View):
         options = replace(identify_options(final.options),
                           budget=jobs.budget_of(self.document.project))
         redundant = list(base.identifiability.get("redundant_lines", []))
+        # the readings the loop fitted: less the error periodic in time it took out of them
+        periodic = next((u["periodic"] for u in record.report.get("unexplained", [])
+                         if u.get("periodic", {}).get("taken_out")), None)
         self.summary.setText("refitting…")
         self.run_task(
             "refit with the accepted effects",
-            ProcessCall(partial(jobs.refit_with_effects, name=record.final),
+            ProcessCall(partial(jobs.refit_with_effects, name=record.final, periodic=periodic),
                         (measurement, chosen, options, initial, redundant, rejected)),
             self._refitted,
             on_cancel=lambda: self.summary.setText("refit cancelled"),

@@ -20,6 +20,7 @@ from .identify import (
     identify,
     residual_rms,
 )
+from .loop_periodic import PeriodicInTime, less
 from .loop_records import ESTIMATED_AGAIN, Finding, IntArray, LoopOptions, Step, group_rms
 from .loop_tester import rms_over
 from .machine import Machine
@@ -168,7 +169,11 @@ class Trial:
 
 
 class Fitter:
-    """Refits of one measurement with a set of effects, from the current model."""
+    """Refits of one measurement with a set of effects, from the current model.
+
+    ``readings`` are the measurement's, less the error periodic in time ``periodic`` where
+    one was taken out of them (:func:`~volucal.core.loop_periodic.taken_out`): the readings
+    of fewer lines are taken the same way."""
 
     def __init__(
         self,
@@ -177,9 +182,11 @@ class Fitter:
         options: LoopOptions,
         redundant: Sequence[str],
         cancel: CancelToken | None,
+        periodic: PeriodicInTime | None = None,
     ) -> None:
         self.measurement = measurement
         self.readings = readings
+        self.periodic = periodic
         self.options = replace(options.identify, redundancy=False)
         self.iterations = options.identify.max_iterations
         self.redundant = redundant
@@ -254,6 +261,8 @@ class Fitter:
             time_s=readings.time_s + shift,
             material_ends_s=readings.material_ends_s + shift,
         )
+        if self.periodic is not None:  # not remembered: its lines are the whole session's
+            readings = less(readings, self.periodic.reading(readings))
         try:
             base = identify(left, self.loop_options.identify, readings=readings, cancel=self.cancel)
         except IdentificationError:
@@ -261,7 +270,7 @@ class Fitter:
         redundant = base.identifiability.redundant_lines
         if can_cross_validate(readings, cross_validate(base.system, readings, redundant)):
             return None
-        return Fitter(left, readings, self.loop_options, redundant, self.cancel)
+        return Fitter(left, readings, self.loop_options, redundant, self.cancel, self.periodic)
 
     def moved(self, effects: Sequence[Effect]) -> list[Effect]:
         """``effects`` of the whole session for this fitter's lines: a set-up effect follows its

@@ -313,6 +313,9 @@ class Unexplained:
     #: the scale of its axis this line's runs read apart from the model, and the doubt it puts
     #: on the axis' positioning error (:func:`~volucal.core.loop_scale.scale_doubts`)
     scale: ScaleDoubt | None = None
+    #: an error periodic in time along one machine direction: its report entry
+    #: (:meth:`~volucal.core.loop_periodic.PeriodicInTime.to_json`; empty for anything else)
+    periodic: dict[str, object] = field(default_factory=dict)
 
     @property
     def strongest(self) -> str | None:

@@ -13,7 +13,7 @@ from scipy import special
 from .identify import CrossValidation, Identification
 from .loop_compare import predicted_rows
 from .loop_courses import cell_centred, moving_one_axis, scales_in_time, unsteady_scales
-from .loop_periodic import periodic_in_time
+from .loop_periodic import is_taken_out, periodic_in_time
 from .loop_records import (
     ONE_LINE_CANNOT_TELL,
     EffectKey,
@@ -52,6 +52,7 @@ def _periodic(identification: Identification, alpha: float) -> list[Unexplained]
     if found is None:
         return []
     readings = identification.readings
+    taken = is_taken_out(readings, alpha)
     names = ", ".join(
         f"{readings.lines[i].name} {found.lines[i]:.2g} µm" for i in sorted(found.lines)
     )
@@ -68,12 +69,21 @@ def _periodic(identification: Identification, alpha: float) -> list[Unexplained]
                 f"{log10_text(found.p)}); one sinusoid of the session takes "
                 f"{100 * found.coherent:.0f} % of what each line's own takes. What it changes "
                 f"on each line, RMS: {names}. No effect of the catalogue is an error in time (a "
-                "hydraulic unit, a chiller or an air conditioning that cycles); no set-up of "
-                "those lines, nor a shape in position mostly on them, is kept in its place"
+                "hydraulic unit, a chiller or an air conditioning that cycles)"
+                + (
+                    ": it was taken out of the readings before the loop searched its effects, "
+                    "the 21 errors are fitted without it, and no set-up of a line it changes, "
+                    "nor a shape in position mostly on the lines it changes from run to run, is "
+                    "kept"
+                    if taken
+                    else "; no set-up of those lines, nor a shape in position mostly on them, is "
+                    "kept in its place"
+                )
             ),
             magnitude_um=found.amplitude_um,
             correlates_with={"time": found.share},
             axis=found.axis,
+            periodic=found.to_json(readings.line_names, taken),
         )
     ]
 

@@ -124,3 +124,33 @@ def test_cancel_stops_a_long_run_and_changes_nothing(qtbot, fresh_window, wait_i
     assert window.document.results("loops") == []
     assert window.document.is_clean is False  # only the import is on the stack
     assert window.document.undo_stack.count() == 1
+
+
+def test_a_refit_by_hand_is_of_the_readings_an_error_periodic_in_time_was_taken_out_of(tmp_path):
+    # blind 83037 (direct plan, 0.11 µm noise): the loop takes a 0.6 µm Z error of period 176 s
+    # out of the readings and keeps nothing. Refitted by hand with no effect, the loop's fit
+    # is found again; of the readings as measured, the error would be back in the 21 errors
+    from volucal.app import jobs
+    from volucal.core.identify import residual_rms
+    from volucal.core.residuals import LoopOptions, close_loop
+
+    from tests.blind.scenarios import write_scenario
+
+    plan, _ = write_scenario(83037, tmp_path)
+    measurement = import_plan(load_plan(plan)).measurement
+    result = close_loop(measurement)
+    report = result.to_report()
+    assert report["effects"] == []
+    (periodic,) = [u["periodic"] for u in report["unexplained"] if "periodic" in u]
+    assert periodic["taken_out"]
+    options = replace(LoopOptions().identify, spacing_mm=report["basis"]["spacing_mm"])
+    redundant = list(result.base.identifiability.redundant_lines)
+
+    def refit(entry):  # type: ignore[no-untyped-def]
+        return jobs.refit_with_effects(
+            measurement, [], options, result.final.model, redundant, periodic=entry
+        ).identification
+
+    after = report["residual_rms_um"]["after_loop"]
+    assert residual_rms(refit(periodic))[0] == pytest.approx(after, rel=1e-3)
+    assert residual_rms(refit(None))[0] > 2 * after

@@ -7,10 +7,12 @@ read the method), for behaviours its suite showed missing:
   even one below half of it where no spacing of the targets repeats, and one whose own second
   harmonic is the next peak of the search (a harmonic is no alias);
 - an error periodic in time, which only widens the run-to-run spread of the lines it acts on, is
-  reported as unexplained on each of them, and nothing is kept for it, not even a set-up
-  effect fitted to what it leaves in the means of a line that repeats far worse than its peers;
-  found as one sinusoid of the session, it is reported with its axis, amplitude and period, and
-  no set-up of a line it acts on is kept, however well that line repeats beside its peers;
+  found as one sinusoid of the session, taken out of the readings before the loop searches,
+  and reported with its axis, amplitude, period and lines: nothing is kept for it, and the 21
+  errors are fitted as the machine has them; left in the readings (as where the search does
+  not find it), it is reported as unexplained on each line it spoils, and nothing is kept for
+  it, not even a set-up effect fitted to what it leaves in the means of a line that repeats
+  far worse than its peers;
 - a scale that oscillates in time, which a surface over two axes or a drift can mimic on the
   lines it crosses, is not kept as either: neither has one size on those lines or runs; nor as
   cosine errors of the lines that read short, while others along the same axes read long; nor
@@ -122,14 +124,33 @@ from score_blind import run_blind  # noqa: E402
 from tests.blind.scenarios import write_scenario  # noqa: E402
 
 
-def _loop(seed: int, noise_draw: int = 0):  # type: ignore[no-untyped-def]
+def _loop_result(seed: int, noise_draw: int = 0):  # type: ignore[no-untyped-def]
     from volucal.core.io.plan import import_plan, load_plan
     from volucal.core.residuals import close_loop
 
     with tempfile.TemporaryDirectory(prefix="volucal-blind-") as tmp:
         plan, truth = write_scenario(seed, tmp, noise_draw=noise_draw)
         measurement = import_plan(load_plan(plan)).measurement
-    return close_loop(measurement).to_report(), truth
+    return close_loop(measurement), truth
+
+
+def _loop(seed: int, noise_draw: int = 0):  # type: ignore[no-untyped-def]
+    result, truth = _loop_result(seed, noise_draw)
+    return result.to_report(), truth
+
+
+def _loop_left_in(seed: int, monkeypatch: pytest.MonkeyPatch):  # type: ignore[no-untyped-def]
+    """The loop where an error periodic in time is not taken out of the readings before it
+    searches, nor found by the judge or the report, as where the search does not find it (a
+    period longer than half a line: 12 of the 62 such errors of the suite's blocks): the
+    lines it acts on wander."""
+    import volucal.core.loop_judge as loop_judge
+    import volucal.core.loop_unexplained as loop_unexplained
+    import volucal.core.residuals as residuals
+
+    for module in (residuals, loop_judge, loop_unexplained):
+        monkeypatch.setattr(module, "periodic_in_time", lambda identification, alpha: None)
+    return _loop(seed)
 
 
 def test_a_cycle_the_finest_line_samples_is_found_at_its_period() -> None:
@@ -147,27 +168,82 @@ def test_a_cycle_the_finest_line_samples_is_found_at_its_period() -> None:
 
 @pytest.mark.parametrize("seed", [1083, 1157])
 def test_an_error_periodic_in_time_is_reported_on_every_line_it_acts_on(seed: int) -> None:
+    # found as one sinusoid of the session, its entry lists the lines it acts on; a line it
+    # leaves more on than the sinusoid takes out is reported on its own too
     report, truth = _loop(seed)
     (effect,) = truth["effects"]
     assert effect["kind"] == "outside:time_periodic"
     noise = truth["noise"]["sigma_um"]
     acting = {line for line, peak in effect["visibility"]["per_line"].items() if peak > 4 * noise}
-    reported = {
-        line
-        for line in acting
-        for u in report["unexplained"]
-        if u["where"].startswith(f"line {line}")
+    (periodic,) = [u["periodic"] for u in report["unexplained"] if "periodic" in u]
+    assert periodic["axis"] == effect["axis"] and periodic["taken_out"]
+    reported = set(periodic["run_to_run_rms_um"]) | {
+        u["where"].split()[1] for u in report["unexplained"] if u["where"].startswith("line ")
     }
-    assert acting and reported == acting, (acting, report["unexplained"])
+    assert acting and acting <= reported, (acting, report["unexplained"])
     assert not report["effects"]
 
 
-def test_a_set_up_of_a_line_that_wanders_is_not_kept() -> None:
+@pytest.mark.parametrize(
+    "seed",
+    [
+        # direct plan, 0.19 µm noise, a 1.4 µm Y error of period 95 s: an Abbe offset of
+        # diag_yz_pp (53, 32, -28) mm, fitted to what the error left in its means, was kept at
+        # 3.1 % better held out
+        33105,
+        # demo plan, 0.44 µm noise, a 1.1 µm Y error of period 75 s: an Abbe offset of y_linear
+        # (90, 0, -22) mm was kept at 4.3 % better held out
+        83031,
+        # direct plan, 0.11 µm noise, a 0.6 µm Z error of period 176 s: a surface EX over X×Z
+        # was kept at 3.2 % better held out, 75 % of it on the lines the error acts on
+        83037,
+        # twelve-line plan, 0.17 µm noise, a 4.2 µm X error of period 70 s
+        1157,
+        # the generator's own plan, 49 lines, 0.41 µm noise, a 3 µm Z error of period 102 s
+        36049,
+    ],
+)
+def test_an_error_periodic_in_time_is_taken_out_before_the_loop_searches_and_reported(
+    seed: int,
+) -> None:
+    # what it leaves in the lines' means, a set-up of a line or a shape in position fits in
+    # part; taken out of the readings, nothing is left for them, and the 21 errors are fitted
+    # as the machine has them: every function within the 0.35 µm / 2 µrad the suite asks of an
+    # exact effect set (before, their worst: 1.3 µm, 0.35 µm, 0.49 µm, 4.2 µrad, and 5.9 µrad
+    # with a squareness 10 µrad off)
+    from score_blind import _accuracy
+
+    result, truth = _loop_result(seed)
+    report = result.to_report()
+    (effect,) = truth["effects"]
+    assert effect["kind"] == "outside:time_periodic"
+    assert report["effects"] == []
+    assert not any(s["kept"] for s in report["loop"])
+    (entry,) = [u for u in report["unexplained"] if "periodic" in u]
+    assert entry["where"] == f"along {effect['axis']}, periodic in time"
+    periodic = entry["periodic"]
+    parameters = effect["parameters"]
+    assert periodic["period_s"] == pytest.approx(parameters["period_s"], rel=0.002)
+    assert periodic["amplitude_um"] == pytest.approx(abs(parameters["amplitude_um"]), rel=0.1)
+    assert entry["magnitude_um"] == periodic["amplitude_um"]
+    assert periodic["taken_out"]
+    assert f"period {parameters['period_s']:.0f} s" in entry["description"]
+    taken = "taken out of the readings before the loop searched its effects"
+    assert taken in entry["description"]
+    assert any("was taken out of the readings" in w for w in report["warnings"])
+    functions, squareness, _ = _accuracy(seed, truth, result)
+    angles = {f"E{c}{a}" for c in "ABC" for a in "XYZ"}
+    assert max(v for k, v in functions.items() if k not in angles) < 0.35, functions
+    assert max(v for k, v in functions.items() if k in angles) < 2.0, functions
+    assert max(squareness.values(), default=0.0) < 2.0, squareness
+
+
+def test_a_set_up_of_a_line_that_wanders_is_not_kept(monkeypatch: pytest.MonkeyPatch) -> None:
     # direct plan, 0.19 µm noise: a 1.4 µm Y error periodic in time (95 s), each run timed
     # alike, so its means per target keep a shape on the lines it acts on. The diagonal
     # diag_yz_pp repeats 4.7 times worse than its steadiest peers; an Abbe offset of
     # (53, 32, -28) mm fitted to its means passed the 3 % margin (3.1 %) and was kept
-    report, truth = _loop(33105)
+    report, truth = _loop_left_in(33105, monkeypatch)
     (effect,) = truth["effects"]
     assert effect["kind"] == "outside:time_periodic"
     assert report["effects"] == []
@@ -182,37 +258,15 @@ def test_a_set_up_of_a_line_that_wanders_is_not_kept() -> None:
     assert "line diag_yz_pp, from run to run" in [u["where"] for u in report["unexplained"]]
 
 
-def test_an_error_periodic_in_time_is_reported_with_its_period_and_no_set_up_is_kept() -> None:
-    # demo plan, 0.44 µm noise: a 1.1 µm Y error periodic in time (75 s). y_linear repeats 1.5
-    # times worse than its steadiest peers, short of a wandering line; an Abbe offset of it of
-    # (90, 0, -22) mm took what the error left in its per-target means, 4.3 % better held out,
-    # and was kept (the 21 errors moved with it)
-    report, truth = _loop(83031)
-    (effect,) = truth["effects"]
-    assert (effect["kind"], effect["axis"]) == ("outside:time_periodic", "Y")
-    assert report["effects"] == []
-    (periodic,) = [u for u in report["unexplained"] if "periodic in time" in u["where"]]
-    assert periodic["where"] == "along Y, periodic in time"
-    period = effect["parameters"]["period_s"]
-    assert f"period {period:.0f} s" in periodic["description"]
-    assert periodic["magnitude_um"] == pytest.approx(
-        abs(effect["parameters"]["amplitude_um"]), rel=0.1
-    )
-    (refusal,) = [
-        s
-        for s in report["loop"]
-        if s["effect"]["kind"] == "abbe_offset" and s["effect"]["parameters"]["line"] == "y_linear"
-    ]
-    assert refusal["verdict"] == "not repeatable", refusal
-    assert "an error periodic in time (1.1 µm along Y, period 75 s" in refusal["reason"]
-
-
-def test_an_error_periodic_in_time_is_not_kept_as_a_reversal() -> None:
+def test_an_error_periodic_in_time_is_not_kept_as_a_reversal(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     # twelve-line plan, 0.32 µm noise: a 2.3 µm Y error periodic in time (264 s). Read forward
     # and backward at different times, it leaves a difference between the approach directions
     # on every Y line: nothing at both ends, 3.5 µm at mid-stroke. A constant reversal of Y took
     # 9.6 % of the held-out error and its size, fitted line by line, differed only 17 %
-    report, truth = _loop(49199)
+    # (found and taken out, it leaves no reversal to judge: 0.1 % worse held out)
+    report, truth = _loop_left_in(49199, monkeypatch)
     (effect,) = truth["effects"]
     assert (effect["kind"], effect["axis"]) == ("outside:time_periodic", "Y")
     assert report["effects"] == []
@@ -434,19 +488,21 @@ def test_a_shape_fitted_to_lines_that_change_between_runs_is_not_kept() -> None:
     # timing leaves in their per-target means differs from line to line. A surface EX over X×Z
     # of order 8 took it at 9.6 % better held out, 92 % of that on those seven lines. It is
     # refused as not repeatable and the lines are reported; so is the error itself, found as
-    # one sinusoid of the session at its period
+    # one sinusoid of the session at its period. Taken out of the readings, it leaves
+    # x_straight_z_offset repeating 2.1 times worse than its peers, and surfaces over X×Z, X×Y
+    # and Y×Z take 5–7 % of the held-out error, all of it there
     report, truth = _loop(42119)
     assert (truth["category"], report["effects"]) == ("outside", [])
     surfaces = {
         s["effect"]["label"]: s for s in report["loop"] if s["effect"]["kind"] == "cross_axis"
     }
-    assert "cross-axis EX over X×Z (order 8)" in surfaces
+    assert any(label.startswith("cross-axis EX over X×Z") for label in surfaces), surfaces
     for step in surfaces.values():
         assert step["verdict"] == "not repeatable"
         assert "on lines that repeat far worse than their peers" in step["reason"]
         assert "an error periodic in time (2.3 µm along Z, period 107 s" in step["reason"]
     where = [u["where"] for u in report["unexplained"]]
-    assert "line z_linear, from run to run" in where
+    assert "line x_straight_z_offset, from run to run" in where
     assert "along Z, periodic in time" in where
 
 
@@ -2045,13 +2101,16 @@ def test_a_surface_that_is_only_the_scales_of_lines_measured_at_other_times_is_t
     assert np.abs((read - read.mean()) - (truth_ppm - truth_ppm.mean())).max() < 0.5
 
 
-def test_a_sliver_of_structure_that_spreads_over_the_plan_is_not_kept() -> None:
+def test_a_sliver_of_structure_that_spreads_over_the_plan_is_not_kept(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     # blind 36049 (the generator's own plan, 49 lines): a 3 µm Z error periodic in time (102 s),
     # outside every catalogue. A surface EZ over Y×Z took 3.7 % of the held-out error, above the
     # 3 % margin, while 22 of the 49 lines stayed unexplained beside it: a share of structure that
     # spreads over the plan as small as that is what any flexible shape takes of it. Nothing is
-    # kept now, and the lines are reported
-    report, _ = _loop(36049)
+    # kept now, and the lines are reported (the error left in the readings, as where the search
+    # does not find it; found and taken out, the surface is 3.3 % worse held out)
+    report, _ = _loop_left_in(36049, monkeypatch)
     assert report["effects"] == []
     assert len(report["unexplained"]) >= 20
     # the surface is refused in the forward steps, most of its gain on the Z lines it leaves
