@@ -88,7 +88,7 @@ class PeriodicInTime:
     #: per line whose readings it changes (by index), over the line's runs or within them: what
     #: it adds there (RMS, µm); a period long beside a line's runs is mostly a course in time
     #: within each, which it changes from run to run little (blind 83141: 1.3 µm along Z,
-    #: 584 s; z_linear_far, 1.0 µm RMS, not among the lines it changes from run to run)
+    #: 584 s; z_linear_far, 0.89 µm RMS, not among the lines it changes from run to run)
     reads: dict[int, float]
     #: its phase (rad): along the axis it reads ``amplitude_um · cos(2π t / period_s − phase_rad)``
     #: at ``t`` seconds of the session's time
@@ -259,7 +259,7 @@ def less(readings: Readings, added: FloatArray) -> Readings:
 
     Each line keeps the weight its logs give it, the spread it repeats to with the error in
     it: weighted by the spread without it (blind 83031: z_straight_y 0.94 µm with it, 0.39 µm
-    without, against 0.44 µm of noise drawn), the lines the error changes weigh up to five
+    without, against 0.44 µm of noise drawn), the lines the error changes weigh up to six
     times more, and what its estimate misses on them took a surface (blind 42119: EX over X×Z
     of order 8 kept, 6.0 % better held out, beside a 2.3 µm Z error of period 107 s)."""
     return replace(readings, value=readings.value - added)
