@@ -359,7 +359,8 @@ def main() -> int:
     print(
         f"  errors beyond {HONEST_RATIO:g} stated standard uncertainties there: {len(beyond)}; "
         "named by the report (moved by an unexplained line left out or by those lines together, "
-        "resting on one, or an axis scale one reads apart): "
+        "resting on one, an axis scale one reads apart, or one the material temperature "
+        "leaves open): "
         f"{sum(named for _, named in beyond)}"
     )
     spacings = Counter(r["basis_mm"] for r in results)

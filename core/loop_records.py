@@ -245,6 +245,52 @@ class Move:
 
 
 @dataclass(frozen=True, eq=False)
+class TemperatureDoubt:
+    """The doubt on an axis' positioning error from its material warming or cooling between the
+    session's first reading and the lines that measured its scale, where no kept drift refers
+    the scale back (:func:`~volucal.core.loop_scale.temperature_doubts`)."""
+
+    axis: str
+    error_id: str
+    #: the line moving the axis alone whose material temperature is nearest the first
+    #: reading's, its mean difference (°C) and its mid-time (min from the session's first reading)
+    line: str
+    change_c: float
+    minutes: float
+    #: the expansion coefficient its file states (ppm/°C), and the half-width of the scale
+    #: doubt (ppm): |ΔT| times that coefficient, or times how far the readings say the scale may
+    #: follow the temperature where that is less
+    expansion_ppm_per_c: float
+    half_width_ppm: float
+    #: |κ| + 2u(κ) of the scale's following the temperature by what the readings read
+    #: (ppm/°C), None where no line's temperature tells it
+    followed_ppm_per_c: float | None
+    #: the standard uncertainty added (µm, RMS over the stroke) and the stated one before it
+    move: float
+    stated_std: float
+    #: the move of the model's parameters whose outer product widens the covariance
+    delta: FloatArray = field(repr=False)
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "error": self.error_id,
+            "axis": self.axis,
+            "line": self.line,
+            "material_change_c": float(self.change_c),
+            "minutes": float(self.minutes),
+            "expansion_ppm_per_c": float(self.expansion_ppm_per_c),
+            "followed_ppm_per_c": (
+                None if self.followed_ppm_per_c is None else float(self.followed_ppm_per_c)
+            ),
+            "half_width_ppm": float(self.half_width_ppm),
+            "distribution": "rectangular",
+            "move": float(self.move),
+            "unit": "µm",
+            "std_before": float(self.stated_std),
+        }
+
+
+@dataclass(frozen=True, eq=False)
 class ScaleDoubt:
     """What an unexplained line's runs read of its axis' scale apart from the model, and the
     doubt that puts on the axis' positioning error."""

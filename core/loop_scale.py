@@ -18,23 +18,30 @@ saying how it is distributed: its positioning error's covariance is widened by a
 line's entry names it. Nothing is added where the line's scale is within its noise (neither its
 mean nor its course in time beyond it) or where the doubt is within the error's stated
 uncertainty.
+
+A scale the machine had at its first reading beyond every line's is read by no line; where the
+files log the material temperature, it says how far that may be: the temperature doubt
+(:func:`temperature_doubts`) of an axis all of whose lines were measured warmer or cooler than
+the first reading, bounded by the expansion coefficient the files state and by how far the lines
+at other temperatures read the scale following it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Collection, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import special
 
 from .effects import ThermalDrift
+from .errors import ErrorModel
 from .identify import Identification
 from .loop_courses import moving_one_axis, scales_in_time
 from .loop_end import STROKE_POINTS, fit_in_gauge, with_shape_doubt
 from .loop_reach import rms_std
-from .loop_records import FloatArray, ScaleDoubt, Unexplained
-from .loop_tester import log10_text
+from .loop_records import FloatArray, ScaleDoubt, TemperatureDoubt, Unexplained
+from .loop_tester import Tester, log10_text
 from .loop_unexplained import line_scale
 
 #: A rectangular distribution of half-width h has the standard deviation h / √3 (GUM 4.3.7).
@@ -85,13 +92,7 @@ def scale_doubts(
         eid = f"E{axis}{axis}"
         if not final.is_identified(eid):
             continue
-        low, high = model.machine.stroke(axis)
-        q = np.linspace(low, high, STROKE_POINTS)
-        values = RECTANGULAR * passes.farthest * 1e-3 * (q - model.machine.reference(axis))
-        coefficients = fit_in_gauge(model, eid, q, values)
-        delta = np.zeros(model.parameter_count)
-        delta[model.parameter_slices[eid]] = coefficients
-        move = float(np.sqrt(np.mean((model.functions[eid].basis.design(q) @ coefficients) ** 2)))
+        delta, move = _scale_move(model, axis, passes.farthest)
         stated = rms_std(final, eid)
         if move <= stated:
             continue
@@ -110,6 +111,21 @@ def scale_doubts(
             delta,
         )
     return out
+
+
+def _scale_move(model: ErrorModel, axis: str, half_width_ppm: float) -> tuple[FloatArray, float]:
+    """The move of ``model``'s parameters a rectangular scale doubt of ±``half_width_ppm`` about
+    the axis' reference position makes (its standard deviation, h/√3, in the axis' positioning
+    error, within its gauge), and that move's RMS over the stroke (µm)."""
+    eid = f"E{axis}{axis}"
+    low, high = model.machine.stroke(axis)
+    q = np.linspace(low, high, STROKE_POINTS)
+    values = RECTANGULAR * half_width_ppm * 1e-3 * (q - model.machine.reference(axis))
+    coefficients = fit_in_gauge(model, eid, q, values)
+    delta = np.zeros(model.parameter_count)
+    delta[model.parameter_slices[eid]] = coefficients
+    move = float(np.sqrt(np.mean((model.functions[eid].basis.design(q) @ coefficients) ** 2)))
+    return delta, move
 
 
 #: A run counts towards a line's scale where its targets' spread about their mean (Σ q²) is at
@@ -205,4 +221,148 @@ def with_scale_doubts(
     return widened, out
 
 
-__all__ = ["RECTANGULAR", "scale_doubts", "with_scale_doubts"]
+def temperature_doubts(
+    final: Identification, followed: Mapping[str, float | None]
+) -> list[TemperatureDoubt]:
+    """Per axis without a kept drift: the doubt its material's change of temperature puts on its
+    positioning error, where its files log the material temperature and state an expansion
+    coefficient.
+
+    The 21 errors describe the machine at the session's first reading (DESIGN, "Time"). A drift
+    the loop keeps refers the scale back there; without one, the axis' positioning error is
+    the scale of the hours its lines were measured in. Where the material was ΔT warmer (or
+    cooler) then than at the first reading, a structure expanding with the coefficient α its
+    files state had a scale α·ΔT apart at the first reading, and nothing in the readings says
+    whether it did: a drift that settled before the axis' first line (blind 54085: Y warming
+    by 2.4 °C with τ 80 min, its first line at 190 min) leaves every line of the axis at one
+    scale, which the 21 errors take up whole. A line of the axis measured at the first
+    reading's temperature reads its scale there, and lines at other temperatures read how far
+    it followed (``followed``, per axis, from :func:`following`: None where no line reads it);
+    what no line reads is the way from the temperature nearest the first reading's to it. So
+    h = |ΔT|·min(α, followed), ΔT of the line moving the axis alone whose mean temperature is
+    nearest the first reading's (the earliest reading whose file logs one) and α as its file
+    states it, is the half-width of a rectangular scale doubt about the reference position
+    (u = h/√3, GUM 4.3.7). Nothing is added where that is within the error's stated standard
+    uncertainty."""
+    readings = final.readings
+    temperature = readings.material_temp_c
+    logged = np.flatnonzero(np.isfinite(temperature))
+    if logged.size == 0:
+        return []
+    first = logged[np.argmin(readings.time_s[logged])]
+    drifting = {e.axis for e in final.effects if isinstance(e, ThermalDrift)}
+    nearest: dict[str, tuple[float, int, float, float, float]] = {}
+    for index, axis in moving_one_axis(readings):
+        if axis in drifting:
+            continue
+        rows = np.flatnonzero((readings.line == index) & np.isfinite(temperature))
+        expansion = readings.lines[index].data.environment.expansion_ppm_per_c
+        if rows.size == 0 or expansion is None or not np.isfinite(expansion):
+            continue
+        change = float(np.mean(temperature[rows]) - temperature[first])
+        half_width = abs(change) * abs(float(expansion))
+        if axis not in nearest or half_width < nearest[axis][0]:
+            minutes = float(np.mean(readings.time_s[rows])) / 60.0
+            nearest[axis] = (half_width, index, change, minutes, abs(float(expansion)))
+    out = []
+    model = final.model
+    for axis, (half_width, index, change, minutes, expansion) in nearest.items():
+        eid = f"E{axis}{axis}"
+        if not final.is_identified(eid) or half_width == 0.0:
+            continue
+        bound = followed.get(axis)
+        if bound is not None:
+            half_width = abs(change) * min(expansion, float(bound))
+        delta, move = _scale_move(model, axis, half_width)
+        stated = rms_std(final, eid)
+        if move <= stated:
+            continue
+        name = readings.lines[index].name
+        out.append(
+            TemperatureDoubt(
+                axis,
+                eid,
+                name,
+                change,
+                minutes,
+                expansion,
+                half_width,
+                bound,
+                move,
+                stated,
+                delta,
+            )
+        )
+    return out
+
+
+#: The coverage factor of the bound on how far an axis' scale followed the material
+#: temperature (:func:`following`).
+FOLLOWED_COVERAGE = 2.0
+
+
+def following(fit: Identification) -> dict[str, float | None]:
+    """Per axis without a kept drift, how far its scale may follow the material temperature by
+    what the readings read (ppm/°C): |κ| + 2u(κ) of a drift driven by the temperature since the
+    session's first reading, fitted to what ``fit`` leaves once it absorbed what it can (the F
+    test's projection; ``fit`` as fitted, its covariance not yet widened). Lines measured at
+    different temperatures read it; None where none does (the drift's column is absorbed
+    whole, as where every line of the axis was measured at one temperature)."""
+    readings = fit.readings
+    if not np.isfinite(readings.material_temp_c).any():
+        return {}
+    tester = Tester(fit)
+    drifting = {e.axis for e in fit.effects if isinstance(e, ThermalDrift)}
+    out: dict[str, float | None] = {}
+    for axis in sorted({axis for _, axis in moving_one_axis(readings)} - drifting):
+        reference = fit.model.machine.reference(axis)
+        drift = ThermalDrift(axis, "temperature", reference_mm=reference)
+        f_stat, _, _, beta = tester.test(drift.design(readings, fit.model))
+        size = abs(float(beta[0]))
+        if tester.last_dimensions == 0 or f_stat <= 0.0 or size == 0.0:
+            out[axis] = None
+        else:
+            out[axis] = size + FOLLOWED_COVERAGE * size / float(np.sqrt(f_stat))
+    return out
+
+
+def temperature_warning(doubt: TemperatureDoubt) -> str:
+    """What the report says of a temperature doubt."""
+    bound = f"at the {doubt.expansion_ppm_per_c:.3g} ppm/°C its file states"
+    if doubt.followed_ppm_per_c is not None:
+        bound += (
+            f" (the lines read at other temperatures say it followed at most "
+            f"{doubt.followed_ppm_per_c:.3g} ppm/°C)"
+        )
+    return (
+        f"the material was {abs(doubt.change_c):.2g} °C "
+        f"{'warmer' if doubt.change_c > 0 else 'cooler'} than at the session's first reading on "
+        f"every line moving {doubt.axis} alone, {doubt.line} ({doubt.minutes:.0f} min into the "
+        f"session) the nearest, and no kept drift refers the {doubt.axis} scale back to it: "
+        f"{bound}, the scale may have been {doubt.half_width_ppm:.3g} ppm apart then, which the "
+        f"readings cannot tell; {doubt.error_id}'s stated uncertainty includes a scale of "
+        f"±{doubt.half_width_ppm:.3g} ppm, rectangular ({doubt.move:.3g} µm RMS over its "
+        f"stroke, {doubt.move / max(doubt.stated_std, 1e-300):.3g} times its standard "
+        "uncertainty before this doubt)"
+    )
+
+
+def with_temperature_doubts(
+    final: Identification, followed: Mapping[str, float | None]
+) -> tuple[Identification, list[TemperatureDoubt]]:
+    """``final`` widened by its axes' temperature doubts (:func:`temperature_doubts`)."""
+    doubts = temperature_doubts(final, followed)
+    if not doubts:
+        return final, []
+    return with_shape_doubt(final, [d.delta for d in doubts], share=1.0), doubts
+
+
+__all__ = [
+    "RECTANGULAR",
+    "following",
+    "scale_doubts",
+    "temperature_doubts",
+    "temperature_warning",
+    "with_scale_doubts",
+    "with_temperature_doubts",
+]

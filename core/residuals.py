@@ -102,12 +102,18 @@ from .loop_records import (
     LoopOptions,
     SpacingChoice,
     Step,
+    TemperatureDoubt,
     Unexplained,
     effect_entry,
     group_rms,
     line_group,
 )
-from .loop_scale import with_scale_doubts
+from .loop_scale import (
+    following,
+    temperature_warning,
+    with_scale_doubts,
+    with_temperature_doubts,
+)
 from .loop_search import diagnose, periods_text
 from .loop_state import State
 from .loop_unexplained import unexplained, with_one_line_effects
@@ -150,6 +156,10 @@ class LoopResult:
     #: the errors the unexplained lines move beyond their stated uncertainty together and none
     #: alone (:func:`~volucal.core.loop_reach.moved_together`)
     together: Together | None = None
+    #: the doubts the material's change of temperature puts on the axes' positioning errors
+    #: where no kept drift refers their scale back to the session's first reading
+    #: (:func:`~volucal.core.loop_scale.temperature_doubts`)
+    temperature_doubts: tuple[TemperatureDoubt, ...] = ()
 
     @property
     def kept(self) -> tuple[Effect, ...]:
@@ -261,6 +271,11 @@ class LoopResult:
                 for u in self.unexplained
             ],
             **({"moved_together": self.together.to_json()} if self.together else {}),
+            **(
+                {"temperature_doubts": [d.to_json() for d in self.temperature_doubts]}
+                if self.temperature_doubts
+                else {}
+            ),
             "warnings": list(self.warnings),
             **({"basis": self.spacing.report()} if self.spacing is not None else {}),
         }
@@ -438,6 +453,8 @@ def _close_loop(
     current, cv, spacing = choose_spacing(
         measurement, readings, options, redundant, current, cv, cancel
     )
+    # read before any doubt widens the fit's covariance, which the F test projects with
+    followed = following(current)
     warnings += state.warnings
     ambiguous, aliased, steps = state.ambiguous, state.aliased, state.steps
     # said only of surfaces and cycles the final model holds
@@ -469,6 +486,8 @@ def _close_loop(
     )
     warnings += [together.warning()] if together else []
     current, leftover = with_scale_doubts(current, leftover, options.alpha)
+    current, temperature = with_temperature_doubts(current, followed)
+    warnings += [temperature_warning(d) for d in temperature]
     report(progress, 1.0, "loop closed")
     rivals = tuple(state.rivals.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
     ranges = tuple(time_ranges.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
@@ -485,6 +504,7 @@ def _close_loop(
         rivals,
         ranges,
         together,
+        tuple(temperature),
     )
 
 

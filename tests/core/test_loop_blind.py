@@ -1129,6 +1129,74 @@ def test_the_errors_beside_a_drift_state_what_its_time_constant_leaves_open() ->
     assert outcome.band_ratio <= 3.0, outcome.function_error
 
 
+@pytest.mark.parametrize(
+    ("seed", "axis", "line", "change_c"),
+    [
+        # demo plan: Y warms by 2.4 °C (τ 80 min) and its first line is measured at 190 min;
+        # two Abbe offsets of Y lines beside it, and the audit takes the drift out. EYY was
+        # 5.9 µm from the machine at the first reading, 11 times its stated uncertainty, and
+        # nothing named it
+        (54085, "Y", "y_linear", 2.2),
+        # the paper's twelve-line plan: X warms by 1.6 °C and no drift is kept (a bump on Z
+        # is); EXX was 4.3 µm from the machine at the first reading, 39 times its stated
+        # uncertainty
+        (54026, "X", "x_lin_3", 1.6),
+    ],
+)
+def test_a_scale_no_line_read_near_the_first_readings_temperature_is_in_its_uncertainty(
+    seed: int, axis: str, line: str, change_c: float
+) -> None:
+    from score_blind import _accuracy
+
+    result, truth = _loop_result(seed)
+    report = result.to_report()
+    (drift,) = [e for e in truth["effects"] if e["kind"] == "thermal_drift"]
+    assert drift["axis"] == axis
+    assert axis not in {e.axis for e in result.kept if e.kind == "thermal_drift"}
+    doubt = {d["axis"]: d for d in report["temperature_doubts"]}[axis]
+    assert doubt["error"] == f"E{axis}{axis}" and doubt["line"] == line
+    assert doubt["material_change_c"] == pytest.approx(change_c, abs=0.1)
+    # the generator's files state 11.5 ppm/°C
+    assert doubt["half_width_ppm"] == pytest.approx(11.5 * doubt["material_change_c"], rel=1e-3)
+    assert any(f"refers the {axis} scale back" in w for w in report["warnings"])
+    functions, _, ratios = _accuracy(seed, truth, result)
+    # the doubt widens the error's uncertainty; it does not move the error
+    assert functions[f"E{axis}{axis}"] > 4.0, functions
+    assert ratios[f"E{axis}{axis}"] < 3.0, ratios
+
+
+def test_an_axis_whose_lines_read_no_change_with_the_temperature_has_no_doubt_from_it() -> None:
+    # blind 54085: x_linear was measured 0.43 °C above the first reading, the other X lines
+    # 2.4 °C above it, and they read one X scale (|κ| + 2u(κ) = 0.15 ppm/°C): the X scale did
+    # not follow the temperature, and 0.43 °C at 11.5 ppm/°C (0.66 µm RMS, 3.6 times EXX's
+    # stated uncertainty) is not added. Every Z line was measured 2.4 °C above it: nothing
+    # reads how Z followed
+    result, _ = _loop_result(54085)
+    doubts = {d.axis: d for d in result.temperature_doubts}
+    assert "X" not in doubts
+    z = doubts["Z"]
+    assert z.followed_ppm_per_c is not None and z.followed_ppm_per_c > z.expansion_ppm_per_c
+    assert z.half_width_ppm == pytest.approx(abs(z.change_c) * z.expansion_ppm_per_c)
+
+
+def test_a_kept_drift_refers_its_axis_scale_back_and_leaves_it_no_temperature_doubt() -> None:
+    # twelve-line plan: X warms (material temperature logged) and the drift is kept
+    result, _ = _loop_result(61080)
+    assert "X" in {e.axis for e in result.kept if e.kind == "thermal_drift"}
+    assert "X" not in {d.axis for d in result.temperature_doubts}
+
+
+def test_a_material_temperature_that_does_not_change_puts_no_doubt_on_the_scales() -> None:
+    # a clean machine (the paper's twelve-line plan) whose files log the material temperature,
+    # steady over the session
+    result, truth = _loop_result(53001)
+    assert truth["effects"] == []
+    temperature = result.final.readings.material_temp_c
+    assert np.isfinite(temperature).all() and np.ptp(temperature) < 0.05
+    assert result.temperature_doubts == ()
+    assert "temperature_doubts" not in result.to_report()
+
+
 def test_a_basis_that_predicts_the_lengths_better_widens_the_errors_uncertainty() -> None:
     # demo plan, 0.40 µm noise: the 150 mm basis predicts the held-out readings best over all
     # (1.3 % better than 100 mm, beyond the 1 % tie) but the lengths worse than 100 mm; at 150

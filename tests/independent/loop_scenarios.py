@@ -872,8 +872,9 @@ def squareness_ratios(result, errors: dict[str, float]) -> dict[str, float]:  # 
 def named_errors(report: dict) -> list[str]:
     """The errors report["unexplained"] names: those an unexplained line moves beyond their
     stated uncertainty when left out, those resting on such a line alone, and the positioning
-    error whose scale such a line reads apart; and those the unexplained lines move beyond
-    together (report["moved_together"])."""
+    error whose scale such a line reads apart; those the unexplained lines move beyond
+    together (report["moved_together"]); and the positioning errors whose scale the material
+    temperature leaves open (report["temperature_doubts"])."""
     named = {
         eid
         for item in report["unexplained"]
@@ -882,6 +883,7 @@ def named_errors(report: dict) -> list[str]:
         + ([item["scale"]["error"]] if "scale" in item else [])
     }
     named |= {m["error"] for m in report.get("moved_together", {}).get("moves", [])}
+    named |= {d["error"] for d in report.get("temperature_doubts", [])}
     return sorted(named)
 
 
