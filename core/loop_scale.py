@@ -59,7 +59,7 @@ def scale_doubts(
     ``alpha``) and the doubt exceeds the error's stated standard uncertainty (an error the plan
     does not identify has none to widen)."""
     readings = final.readings
-    drifting = {e.axis for e in final.effects if isinstance(e, ThermalDrift)}
+    drifting = _drifting(final)
     tested = [
         (index, axis)
         for index, axis in moving_one_axis(readings)
@@ -240,30 +240,43 @@ def temperature_doubts(
     it followed (``followed``, per axis, from :func:`following`: None where no line reads it);
     what no line reads is the way from the temperature nearest the first reading's to it. So
     h = |ΔT|·min(α, followed), ΔT of the line moving the axis alone whose mean temperature is
-    nearest the first reading's (the earliest reading whose file logs one) and α as its file
-    states it, is the half-width of a rectangular scale doubt about the reference position
-    (u = h/√3, GUM 4.3.7). Nothing is added where that is within the error's stated standard
-    uncertainty."""
+    nearest the first reading's and α as its file states it (else as the axis' other files
+    do), is the half-width of a rectangular scale doubt about the reference position (u =
+    h/√3, GUM 4.3.7): the bound carries the scale's following read between other
+    temperatures back to the first reading's, as a straight line in the temperature. Nothing
+    is added where that is within the error's stated standard uncertainty, where the first
+    reading or a line of the axis logs no temperature (that line may have read the scale
+    there), or where no file of the axis states a coefficient."""
     readings = final.readings
     temperature = readings.material_temp_c
-    logged = np.flatnonzero(np.isfinite(temperature))
-    if logged.size == 0:
+    if not readings.time_s.size:
         return []
-    first = logged[np.argmin(readings.time_s[logged])]
-    drifting = {e.axis for e in final.effects if isinstance(e, ThermalDrift)}
-    nearest: dict[str, tuple[float, int, float, float, float]] = {}
+    first = int(np.argmin(readings.time_s))
+    if not np.isfinite(temperature[first]):
+        return []  # not logged at the first reading: nothing says how far it changed since
+    drifting = _drifting(final)
+    lines: dict[str, list[tuple[float, int, float, float | None]]] = {}
     for index, axis in moving_one_axis(readings):
-        if axis in drifting:
+        rows = np.flatnonzero(readings.line == index)
+        if axis in drifting or rows.size == 0:
             continue
-        rows = np.flatnonzero((readings.line == index) & np.isfinite(temperature))
-        expansion = readings.lines[index].data.environment.expansion_ppm_per_c
-        if rows.size == 0 or expansion is None or not np.isfinite(expansion):
+        change = float(np.mean(temperature[rows]) - temperature[first])  # NaN: not logged
+        minutes = float(np.mean(readings.time_s[rows])) / 60.0
+        stated = readings.lines[index].data.environment.expansion_ppm_per_c
+        lines.setdefault(axis, []).append((change, index, minutes, stated))
+    nearest: dict[str, tuple[float, int, float, float, float]] = {}
+    for axis, measured in lines.items():
+        # a line whose file logs no temperature may have read the scale at the first reading's
+        if not all(np.isfinite(change) for change, *_ in measured):
             continue
-        change = float(np.mean(temperature[rows]) - temperature[first])
-        half_width = abs(change) * abs(float(expansion))
-        if axis not in nearest or half_width < nearest[axis][0]:
-            minutes = float(np.mean(readings.time_s[rows])) / 60.0
-            nearest[axis] = (half_width, index, change, minutes, abs(float(expansion)))
+        measured.sort(key=lambda m: abs(m[0]))
+        change, index, minutes, _ = measured[0]
+        expansions = [abs(float(a)) for *_, a in measured if a is not None and np.isfinite(a)]
+        if not expansions:
+            continue
+        # the nearest line's coefficient, else the one the axis' other files state
+        expansion = expansions[0]
+        nearest[axis] = (abs(change) * expansion, index, change, minutes, expansion)
     out = []
     model = final.model
     for axis, (half_width, index, change, minutes, expansion) in nearest.items():
@@ -301,6 +314,11 @@ def temperature_doubts(
 FOLLOWED_COVERAGE = 2.0
 
 
+def _drifting(fit: Identification) -> set[str]:
+    """The axes of the drifts ``fit`` keeps: their scale is referred to the first reading."""
+    return {e.axis for e in fit.effects if isinstance(e, ThermalDrift)}
+
+
 def following(fit: Identification) -> dict[str, float | None]:
     """Per axis without a kept drift, how far its scale may follow the material temperature by
     what the readings read (ppm/°C): |κ| + 2u(κ) of a drift driven by the temperature since the
@@ -309,10 +327,11 @@ def following(fit: Identification) -> dict[str, float | None]:
     different temperatures read it; None where none does (the drift's column is absorbed
     whole, as where every line of the axis was measured at one temperature)."""
     readings = fit.readings
-    if not np.isfinite(readings.material_temp_c).any():
+    # a reading without a temperature would count as at the first reading's
+    if not readings.time_s.size or not np.isfinite(readings.material_temp_c).all():
         return {}
     tester = Tester(fit)
-    drifting = {e.axis for e in fit.effects if isinstance(e, ThermalDrift)}
+    drifting = _drifting(fit)
     out: dict[str, float | None] = {}
     for axis in sorted({axis for _, axis in moving_one_axis(readings)} - drifting):
         reference = fit.model.machine.reference(axis)
@@ -328,8 +347,11 @@ def following(fit: Identification) -> dict[str, float | None]:
 
 def temperature_warning(doubt: TemperatureDoubt) -> str:
     """What the report says of a temperature doubt."""
-    bound = f"at the {doubt.expansion_ppm_per_c:.3g} ppm/°C its file states"
-    if doubt.followed_ppm_per_c is not None:
+    bound = f"at the {doubt.expansion_ppm_per_c:.3g} ppm/°C its files state"
+    if (
+        doubt.followed_ppm_per_c is not None
+        and doubt.followed_ppm_per_c < doubt.expansion_ppm_per_c
+    ):
         bound += (
             f" (the lines read at other temperatures say it followed at most "
             f"{doubt.followed_ppm_per_c:.3g} ppm/°C)"

@@ -365,8 +365,19 @@ def _close_loop(
             "more lines or longer lines to close the loop"
         )
         leftover = unexplained(base, cv_base, options.alpha)
+        final, temperature = with_temperature_doubts(base, following(base))
+        warnings += [temperature_warning(d) for d in temperature]
         return LoopResult(
-            base, base, cv_base, cv_base, (), tuple(leftover), tuple(warnings), (), spacing
+            base,
+            final,
+            cv_base,
+            cv_base,
+            (),
+            tuple(leftover),
+            tuple(warnings),
+            (),
+            spacing,
+            temperature_doubts=tuple(temperature),
         )
     # an error periodic in time is no effect of the catalogue, and what it leaves in the lines
     # it acts on a shape in position or a set-up fits in part (blind 83037: a 0.6 µm Z error of
