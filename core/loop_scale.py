@@ -28,7 +28,7 @@ at other temperatures read the scale following it.
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -221,32 +221,30 @@ def with_scale_doubts(
     return widened, out
 
 
-def temperature_doubts(
-    final: Identification, followed: Mapping[str, float | None]
-) -> list[TemperatureDoubt]:
+def temperature_doubts(final: Identification, fitted: Identification) -> list[TemperatureDoubt]:
     """Per axis without a kept drift: the doubt its material's change of temperature puts on its
     positioning error, where its files log the material temperature and state an expansion
     coefficient.
 
     The 21 errors describe the machine at the session's first reading (DESIGN, "Time"). A drift
-    the loop keeps refers the scale back there; without one, the axis' positioning error is
-    the scale of the hours its lines were measured in. Where the material was ΔT warmer (or
-    cooler) then than at the first reading, a structure expanding with the coefficient α its
-    files state had a scale α·ΔT apart at the first reading, and nothing in the readings says
-    whether it did: a drift that settled before the axis' first line (blind 54085: Y warming
-    by 2.4 °C with τ 80 min, its first line at 190 min) leaves every line of the axis at one
-    scale, which the 21 errors take up whole. A line of the axis measured at the first
-    reading's temperature reads its scale there, and lines at other temperatures read how far
-    it followed (``followed``, per axis, from :func:`following`: None where no line reads it);
-    what no line reads is the way from the temperature nearest the first reading's to it. So
-    h = |ΔT|·min(α, followed), ΔT of the line moving the axis alone whose mean temperature is
-    nearest the first reading's and α as its file states it (else as the axis' other files
-    do), is the half-width of a rectangular scale doubt about the reference position (u =
-    h/√3, GUM 4.3.7): the bound carries the scale's following read between other
-    temperatures back to the first reading's, as a straight line in the temperature. Nothing
-    is added where that is within the error's stated standard uncertainty, where the first
-    reading or a line of the axis logs no temperature (that line may have read the scale
-    there), or where no file of the axis states a coefficient."""
+    the loop keeps refers the scale back there; without one, the axis' positioning error is the
+    scale of the hours its lines were measured in. Where the material was ΔT warmer (or cooler)
+    then than at the first reading, a structure expanding with the coefficient α its files state
+    had a scale α·ΔT apart at the first reading, and nothing in the readings says whether it
+    did: a drift that settled before the axis' first line (blind 54085: Y warming by 2.4 °C with
+    τ 80 min, its first line at 190 min) leaves every line of the axis at one scale, which the
+    21 errors take up whole. A line of the axis measured at the first reading's temperature
+    reads its scale there, and lines at other temperatures read how far it followed
+    (:func:`following`, on ``fitted``: ``final`` before any doubt widened it; None where no line
+    reads it); what no line reads is the way from the temperature nearest the first reading's to
+    it. So h = |ΔT|·min(α, followed), ΔT of the line moving the axis alone whose mean
+    temperature is nearest the first reading's and α as its file states it (else as the axis'
+    other files do), is the half-width of a rectangular scale doubt about the reference position
+    (u = h/√3, GUM 4.3.7): the bound carries the scale's following read between other
+    temperatures back to the first reading's, as a straight line in the temperature. Nothing is
+    added where that is within the error's stated standard uncertainty, where the first reading
+    or a line of the axis logs no temperature (that line may have read the scale there), or
+    where no file of the axis states a coefficient."""
     readings = final.readings
     temperature = readings.material_temp_c
     if not readings.time_s.size:
@@ -277,12 +275,17 @@ def temperature_doubts(
         # the nearest line's coefficient, else the one the axis' other files state
         expansion = expansions[0]
         nearest[axis] = (abs(change) * expansion, index, change, minutes, expansion)
+    nearest = {
+        axis: found
+        for axis, found in nearest.items()
+        if found[0] > 0.0 and final.is_identified(f"E{axis}{axis}")
+    }
+    # read only for the axes a doubt may be given (a Tester and an F test each)
+    followed = following(fitted, list(nearest)) if nearest else {}
     out = []
     model = final.model
     for axis, (half_width, index, change, minutes, expansion) in nearest.items():
         eid = f"E{axis}{axis}"
-        if not final.is_identified(eid) or half_width == 0.0:
-            continue
         bound = followed.get(axis)
         if bound is not None:
             half_width = abs(change) * min(expansion, float(bound))
@@ -319,8 +322,8 @@ def _drifting(fit: Identification) -> set[str]:
     return {e.axis for e in fit.effects if isinstance(e, ThermalDrift)}
 
 
-def following(fit: Identification) -> dict[str, float | None]:
-    """Per axis without a kept drift, how far its scale may follow the material temperature by
+def following(fit: Identification, axes: Sequence[str]) -> dict[str, float | None]:
+    """Per axis of ``axes``, how far its scale may follow the material temperature by
     what the readings read (ppm/°C): |κ| + 2u(κ) of a drift driven by the temperature since the
     session's first reading, fitted to what ``fit`` leaves once it absorbed what it can (the F
     test's projection; ``fit`` as fitted, its covariance not yet widened). Lines measured at
@@ -331,9 +334,8 @@ def following(fit: Identification) -> dict[str, float | None]:
     if not readings.time_s.size or not np.isfinite(readings.material_temp_c).all():
         return {}
     tester = Tester(fit)
-    drifting = _drifting(fit)
     out: dict[str, float | None] = {}
-    for axis in sorted({axis for _, axis in moving_one_axis(readings)} - drifting):
+    for axis in axes:
         reference = fit.model.machine.reference(axis)
         drift = ThermalDrift(axis, "temperature", reference_mm=reference)
         f_stat, _, _, beta = tester.test(drift.design(readings, fit.model))
@@ -370,10 +372,11 @@ def temperature_warning(doubt: TemperatureDoubt) -> str:
 
 
 def with_temperature_doubts(
-    final: Identification, followed: Mapping[str, float | None]
+    final: Identification, fitted: Identification
 ) -> tuple[Identification, list[TemperatureDoubt]]:
-    """``final`` widened by its axes' temperature doubts (:func:`temperature_doubts`)."""
-    doubts = temperature_doubts(final, followed)
+    """``final`` widened by its axes' temperature doubts (:func:`temperature_doubts`; ``fitted``
+    is ``final`` before any doubt widened it)."""
+    doubts = temperature_doubts(final, fitted)
     if not doubts:
         return final, []
     return with_shape_doubt(final, [d.delta for d in doubts], share=1.0), doubts

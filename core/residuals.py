@@ -108,12 +108,7 @@ from .loop_records import (
     group_rms,
     line_group,
 )
-from .loop_scale import (
-    following,
-    temperature_warning,
-    with_scale_doubts,
-    with_temperature_doubts,
-)
+from .loop_scale import temperature_warning, with_scale_doubts, with_temperature_doubts
 from .loop_search import diagnose, periods_text
 from .loop_state import State
 from .loop_unexplained import unexplained, with_one_line_effects
@@ -365,7 +360,7 @@ def _close_loop(
             "more lines or longer lines to close the loop"
         )
         leftover = unexplained(base, cv_base, options.alpha)
-        final, temperature = with_temperature_doubts(base, following(base))
+        final, temperature = with_temperature_doubts(base, base)
         warnings += [temperature_warning(d) for d in temperature]
         return LoopResult(
             base,
@@ -464,8 +459,9 @@ def _close_loop(
     current, cv, spacing = choose_spacing(
         measurement, readings, options, redundant, current, cv, cancel
     )
-    # read before any doubt widens the fit's covariance, which the F test projects with
-    followed = following(current)
+    # the fit before any doubt widens its covariance, which the temperature doubts' F test
+    # projects with
+    fitted = current
     warnings += state.warnings
     ambiguous, aliased, steps = state.ambiguous, state.aliased, state.steps
     # said only of surfaces and cycles the final model holds
@@ -497,7 +493,7 @@ def _close_loop(
     )
     warnings += [together.warning()] if together else []
     current, leftover = with_scale_doubts(current, leftover, options.alpha)
-    current, temperature = with_temperature_doubts(current, followed)
+    current, temperature = with_temperature_doubts(current, fitted)
     warnings += [temperature_warning(d) for d in temperature]
     report(progress, 1.0, "loop closed")
     rivals = tuple(state.rivals.get(e.key, {}) for e in current.effects)  # type: ignore[attr-defined]
