@@ -28,6 +28,7 @@ import json
 import multiprocessing
 import os
 import sys
+import tempfile
 import time
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
@@ -40,6 +41,7 @@ sys.path.insert(0, str(ROOT / "tests" / "independent"))
 sys.path.insert(0, str(ROOT))
 
 from loop_scenarios import VISIBLE_FACTOR  # noqa: E402
+from machines import MACHINES, write_plans  # noqa: E402
 
 ANGLE_IDS = {f"E{c}{a}" for c in "ABC" for a in "XYZ"}
 SQUARENESS_IDS = {"EC0Y", "EB0Z", "EA0Z"}
@@ -49,12 +51,12 @@ SQUARENESS_IDS = {"EC0Y", "EB0Z", "EA0Z"}
 HONEST_RATIO = 3.0
 
 
-def _one(seed: int, generator: str = "independent") -> dict:
+def _one(seed: int, generator: str = "independent", plans: dict[str, Path] | None = None) -> dict:
     started = time.perf_counter()
     if generator == "blind":
         from score_blind import run_blind
 
-        outcome = run_blind(seed)
+        outcome = run_blind(seed, plans=plans)
     else:
         from loop_scenarios import make_scenario, run_scenario
 
@@ -243,18 +245,39 @@ def main() -> int:
         help="tests/independent (written beside the loop) or tests/blind (written without "
         "reading the method)",
     )
+    parser.add_argument(
+        "--machine",
+        choices=("paper", *MACHINES),
+        default="paper",
+        help="with --generator blind: the machine its plans are laid out on, the paper's "
+        "400 × 400 × 350 mm (as written) or one of benchmarks/machines.py, the same lines "
+        "moved onto its strokes, leads and tool",
+    )
     args = parser.parse_args()
+    if args.machine != "paper" and args.generator != "blind":
+        parser.error("--machine moves the blind generator's plans: use it with --generator blind")
     # one BLAS thread per worker: the workers are the parallelism. The workers are spawned, not
     # forked: a forked worker inherits this process's BLAS, started with a thread per core before
     # these were set (10 scenarios on 2 workers: 30 s forked, 14 s spawned)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     seeds = range(args.seed, args.seed + args.count)
+    plans = None
+    if args.machine != "paper":
+        from tests.blind.scenarios import PLANS
+
+        machine = MACHINES[args.machine]
+        # removed when the process exits
+        scratch = tempfile.TemporaryDirectory(prefix="volucal-machine-")
+        plans = write_plans(Path(scratch.name), machine, list(PLANS))
+        print(f"the blind generator's plans moved onto {machine.description}", flush=True)
     started = time.perf_counter()
     spawn = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=args.workers, mp_context=spawn) as pool:
         results = []
-        for r in pool.map(functools.partial(_one, generator=args.generator), seeds, chunksize=1):
+        for r in pool.map(
+            functools.partial(_one, generator=args.generator, plans=plans), seeds, chunksize=1
+        ):
             results.append(r)
             print(
                 f"{r['seed']} {r['plan']:<11} {r['category']:<8} noise {r['noise_um']:.3f} "

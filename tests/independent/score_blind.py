@@ -37,7 +37,7 @@ from numpy.polynomial import legendre
 from tests.blind import effects as fx
 from tests.blind.laser import measure_line
 from tests.blind.rigid_fit import RigidProjector
-from tests.blind.scenarios import Scenario, build_scenario, write_scenario
+from tests.blind.scenarios import Scenario, build_scenario, draw_plan_and_category, write_scenario
 
 #: A surface term is a rigid body's on the plan when the generator's own 21-error fit leaves
 #: less than this share of its contribution (one norm over every line's target means; a term no
@@ -155,7 +155,7 @@ def _accuracy(seed: int, truth: dict, result) -> tuple[PerError, PerError, PerEr
 
     single: dict[str, list] = {}
     surfaces: dict[str, list] = {}
-    scenario = build_scenario(seed)
+    scenario = build_scenario(seed, plan=truth["plan"]["source"])
     projector, rigid, rigid_squareness, remaining = rigid_share(scenario)
     for effect in scenario.effects:
         if effect.kind in ("cyclic", "local"):
@@ -221,15 +221,22 @@ def calibrated_report(seed: int) -> dict:
         return json.loads(report_path.read_text(encoding="utf-8"))
 
 
-def run_blind(seed: int, noise_draw: int = 0, paths: bool = False) -> Outcome:
+def run_blind(
+    seed: int, noise_draw: int = 0, paths: bool = False, plans: dict[str, Path] | None = None
+) -> Outcome:
     """Write the blind scenario ``seed`` (with ``noise_draw``, its readings' noise drawn anew:
     :func:`scenarios.build_scenario`), import it with volucal, close the loop, score; with
-    ``paths``, also the squareness between the tool's paths (:func:`path_squareness`)."""
+    ``paths``, also the squareness between the tool's paths (:func:`path_squareness`). With
+    ``plans`` (the generator's plan sources to other plans: benchmarks/machines.py), the plan
+    the seed draws is replaced by its counterpart, every other draw of the seed kept."""
     from volucal.core.io.plan import import_plan, load_plan
     from volucal.core.residuals import close_loop
 
+    plan = None
+    if plans is not None:
+        plan = str(plans[draw_plan_and_category(seed)[0]])
     with tempfile.TemporaryDirectory(prefix="volucal-blind-") as tmp:
-        plan_path, truth = write_scenario(seed, tmp, noise_draw=noise_draw)
+        plan_path, truth = write_scenario(seed, tmp, plan=plan, noise_draw=noise_draw)
         start = time.perf_counter()
         measurement = import_plan(load_plan(plan_path)).measurement
         result = close_loop(measurement)
@@ -302,7 +309,13 @@ def true_tool_error(scenario: Scenario, tool_mm: np.ndarray, states: np.ndarray)
     n = len(states)
     zeros = np.zeros(n)
     readings = fx.Readings(
-        "path", "linear", states, zeros, np.zeros((n, 3)), zeros, zeros.astype(int),
+        "path",
+        "linear",
+        states,
+        zeros,
+        np.zeros((n, 3)),
+        zeros,
+        zeros.astype(int),
         zeros.astype(int),
     )
     deltas: dict[str, np.ndarray] = {}
@@ -349,14 +362,12 @@ def path_squareness(  # type: ignore[no-untyped-def]
     from volucal.core.squareness_map import squareness_map
 
     source = LoopSource(result.final, measured_range(result.final))
-    scenario = build_scenario(seed)
+    scenario = build_scenario(seed, plan=truth["plan"]["source"])
     tool = np.asarray(truth["plan"]["tool_offset_mm"], float)
     out = {}
     for entry in squareness_map(source):
         sid, ranges = entry.squareness_id, entry.volume_mm
-        true = np.array(
-            [true_path_angle(scenario, tool, sid, p, ranges) for p in entry.places_mm]
-        )
+        true = np.array([true_path_angle(scenario, tool, sid, p, ranges) for p in entry.places_mm])
         errors = entry.angle_urad - true
         out[sid] = (
             float(errors[entry.centre]),

@@ -1,0 +1,61 @@
+"""The loop suite's plans moved onto machines of other sizes (benchmarks/machines.py), and the loop
+on them: every scenario the suite had run was on the paper's 400 × 400 × 350 mm machine."""
+
+from __future__ import annotations
+
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "tests" / "independent"))
+
+from machines import MACHINES, write_plans  # noqa: E402
+
+from tests.blind.laser import line_length, read_plan  # noqa: E402
+from tests.blind.scenarios import PLANS  # noqa: E402
+from volucal.core.io.plan import load_plan  # noqa: E402
+
+
+def _ends(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Each line's first and last point inside the strokes (the generator's own reading)."""
+    spec = read_plan(path)
+    return {
+        line.name: (line.start_mm, line.start_mm + line_length(line, spec.stroke_mm) * line.direction)
+        for line in spec.lines
+    }
+
+
+@pytest.mark.parametrize("size", sorted(MACHINES))
+def test_a_moved_plan_keeps_every_line_at_its_place_relative_to_the_strokes(tmp_path, size) -> None:
+    machine = MACHINES[size]
+    moved = write_plans(tmp_path, machine, list(PLANS))
+    for source, path in moved.items():
+        plan = load_plan(path)  # volucal reads it as a user's plan
+        assert plan.machine.stroke("X") == machine.stroke_mm["X"]
+        document = tomllib.loads(path.read_text(encoding="utf-8"))
+        assert document["machine"]["screw_lead"] == machine.screw_lead_mm
+        assert document["machine"]["tool_offset"] == [0.0, 0.0, machine.tool_mm]
+        old = read_plan(ROOT / source)
+        old_ends, new_ends = _ends(ROOT / source), _ends(path)
+        assert set(old_ends) == set(new_ends)
+        for name, (first, last) in old_ends.items():
+            # both ends of every line, diagonals included, are the old ones scaled axis by axis
+            for old_point, new_point in zip((first, last), new_ends[name], strict=True):
+                for i, axis in enumerate("XYZ"):
+                    lo, hi = old.stroke_mm[axis]
+                    new_lo, new_hi = machine.stroke_mm[axis]
+                    expected = new_lo + (old_point[i] - lo) * (new_hi - new_lo) / (hi - lo)
+                    assert new_point[i] == pytest.approx(expected, abs=0.02), (source, name, axis)
+        for old_line, new_line in zip(old.lines, read_plan(path).lines, strict=True):
+            # the optics keep their place beside the tool, the lever arms scaled by ``lever``
+            lever = old_line.reflector_mm - old.tool_offset_mm
+            assert np.allclose(
+                new_line.reflector_mm, [0.0, 0.0, machine.tool_mm] + machine.lever * lever
+            )
+            if old_line.sensitive is not None:
+                assert np.array_equal(new_line.sensitive, old_line.sensitive)
