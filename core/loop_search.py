@@ -142,7 +142,7 @@ def _cyclic_candidates(
         lowest = SHORTEST_PERIOD_MM
     else:
         lowest = SUB_SPACING_SHARE * step
-    longest = span / 4.0
+    longest = span / 2.0
     if not lead and shortest > 8.0 and lowest > SHORTEST_PERIOD_MM:
         warnings.append(
             f"targets about every {step:.3g} mm along {axis}: a cycle shorter than "

@@ -15,17 +15,20 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT / "tests" / "independent"))
 
 from machines import MACHINES, write_plans  # noqa: E402
+from volucal.core.io.plan import load_plan  # noqa: E402
 
 from tests.blind.laser import line_length, read_plan  # noqa: E402
 from tests.blind.scenarios import PLANS  # noqa: E402
-from volucal.core.io.plan import load_plan  # noqa: E402
 
 
 def _ends(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Each line's first and last point inside the strokes (the generator's own reading)."""
     spec = read_plan(path)
     return {
-        line.name: (line.start_mm, line.start_mm + line_length(line, spec.stroke_mm) * line.direction)
+        line.name: (
+            line.start_mm,
+            line.start_mm + line_length(line, spec.stroke_mm) * line.direction,
+        )
         for line in spec.lines
     }
 
@@ -59,3 +62,34 @@ def test_a_moved_plan_keeps_every_line_at_its_place_relative_to_the_strokes(tmp_
             )
             if old_line.sensitive is not None:
                 assert np.array_equal(new_line.sensitive, old_line.sensitive)
+
+
+def _loop_on(size: str, seed: int, tmp_path: Path):  # type: ignore[no-untyped-def]
+    """The blind scenario ``seed`` on its plan moved onto ``size``, through volucal's import."""
+    from volucal.core.io.plan import import_plan
+    from volucal.core.residuals import close_loop
+
+    from tests.blind.scenarios import draw_plan_and_category, write_scenario
+
+    plans = write_plans(tmp_path / "plans", MACHINES[size], list(PLANS))
+    plan = str(plans[draw_plan_and_category(seed)[0]])
+    path, truth = write_scenario(seed, tmp_path / "scenario", plan=plan)
+    return close_loop(import_plan(load_plan(path)).measurement).to_report(), truth
+
+
+def test_a_cycle_of_a_third_of_a_small_machines_stroke_is_kept_at_its_period(tmp_path) -> None:
+    # blind 97141 on the 250 × 200 × 150 mm machine: a 3.6 µm cycle of Y of 58.8 mm, 3.4
+    # periods over the 200 mm stroke, at 0.37 µm noise. The period search stopped at a quarter
+    # of the stroke (50 mm): a finer Y function took the cycle first, then a 42.1 mm cycle
+    # what was left.
+    report, truth = _loop_on("small", 97141, tmp_path)
+    (cycle,) = [e for e in truth["effects"] if e["kind"] == "cyclic"]
+    assert (cycle["axis"], cycle["parameters"]["period_mm"]) == (
+        "Y",
+        pytest.approx(58.79, abs=0.01),
+    )
+    (kept,) = report["effects"]
+    assert kept["kind"] == "cyclic" and kept["axis"] == "Y"
+    # the stroke's frequency resolution at this period is 58.8² / 200 = 17 mm
+    assert kept["parameters"]["period_mm"] == pytest.approx(58.79, abs=1.0)
+    assert kept["parameters"]["amplitude_um"] == pytest.approx(3.61, abs=0.2)
