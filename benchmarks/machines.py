@@ -7,7 +7,7 @@ a line's start is scaled by its axis' stroke ratio, a diagonal keeps its corners
 the scaled one, normalised), axis-parallel lines keep their directions, straightness and angular
 lines their sensitive directions. The optics stay where the plan puts them relative to the tool:
 a reflector at the paper's tool offset moves to the new one, and a lever arm beside it (the 150 mm
-offsets) keeps its length, scaled by ``lever`` (the optics of a small machine sit closer).
+offsets) is scaled by the machine's ``lever`` (the optics of a small machine sit closer).
 
     python benchmarks/machines.py DIR     # writes DIR/<machine>/<plan>.toml for inspection
 """
@@ -121,7 +121,7 @@ def moved_plan(source: Path, machine: MachineSize) -> str:
     ]
     text += [f"{k} = {_toml_value(v)}" for k, v in header.items()]
     for key in old:
-        if key not in header and key not in ("stroke", "screw_lead", "tool_offset"):
+        if key not in header:
             raise ValueError(f"{source}: [machine] {key} is not moved by benchmarks/machines.py")
     for key in document:
         if key not in ("machine", "line"):
