@@ -262,7 +262,7 @@ def temperature_doubts(final: Identification, fitted: Identification) -> list[Te
         minutes = float(np.mean(readings.time_s[rows])) / 60.0
         stated = readings.lines[index].data.environment.expansion_ppm_per_c
         lines.setdefault(axis, []).append((change, index, minutes, stated))
-    nearest: dict[str, tuple[float, int, float, float, float]] = {}
+    nearest: dict[str, tuple[int, float, float, float]] = {}
     for axis, measured in lines.items():
         # a line whose file logs no temperature may have read the scale at the first reading's
         if not all(np.isfinite(change) for change, *_ in measured):
@@ -270,25 +270,17 @@ def temperature_doubts(final: Identification, fitted: Identification) -> list[Te
         measured.sort(key=lambda m: abs(m[0]))
         change, index, minutes, _ = measured[0]
         expansions = [abs(float(a)) for *_, a in measured if a is not None and np.isfinite(a)]
-        if not expansions:
-            continue
         # the nearest line's coefficient, else the one the axis' other files state
-        expansion = expansions[0]
-        nearest[axis] = (abs(change) * expansion, index, change, minutes, expansion)
-    nearest = {
-        axis: found
-        for axis, found in nearest.items()
-        if found[0] > 0.0 and final.is_identified(f"E{axis}{axis}")
-    }
+        if expansions and change * expansions[0] != 0.0 and final.is_identified(f"E{axis}{axis}"):
+            nearest[axis] = (index, change, minutes, expansions[0])
     # read only for the axes a doubt may be given (a Tester and an F test each)
     followed = following(fitted, list(nearest)) if nearest else {}
     out = []
     model = final.model
-    for axis, (half_width, index, change, minutes, expansion) in nearest.items():
+    for axis, (index, change, minutes, expansion) in nearest.items():
         eid = f"E{axis}{axis}"
         bound = followed.get(axis)
-        if bound is not None:
-            half_width = abs(change) * min(expansion, float(bound))
+        half_width = abs(change) * (expansion if bound is None else min(expansion, float(bound)))
         delta, move = _scale_move(model, axis, half_width)
         stated = rms_std(final, eid)
         if move <= stated:
