@@ -16,12 +16,13 @@ method can attribute on the plan: one line alone shows it, see ``loop_scenarios.
 kept or reported unexplained on a line that shows it, and how the one-line effects were handled.
 
     python benchmarks/bench_loop_suite.py [--count 200] [--seed 500000] [--workers 2] [--json F]
-        [--generator independent|blind] [--machine paper|large|small]
+        [--generator independent|blind] [--machine paper|large|small|gantry]
 
 ``--machine`` (with ``--generator blind``) moves the blind generator's plans, all laid out on the
-paper's 400 × 400 × 350 mm machine, onto a 1000 × 600 × 500 mm or a 250 × 200 × 150 mm one
-(benchmarks/machines.py): the same lines at the same places relative to the strokes, the
-machine's errors and effects drawn for its strokes, leads and tool.
+paper's 400 × 400 × 350 mm machine, onto a 1000 × 600 × 500 mm, a 250 × 200 × 150 mm or a
+2000 × 3000 × 500 mm gantry one (benchmarks/machines.py): the same lines at the same places
+relative to the strokes, the machine's errors and effects drawn for its strokes, leads, tool and
+chain (the gantry's bridge carries X: chain WFYXZT).
 
 The seeds of the reported run (500000…) were not used while the loop was developed.
 """

@@ -7,7 +7,8 @@ a line's start is scaled by its axis' stroke ratio, a diagonal keeps its corners
 the scaled one, normalised), axis-parallel lines keep their directions, straightness and angular
 lines their sensitive directions. The optics stay where the plan puts them relative to the tool:
 a reflector at the paper's tool offset moves to the new one, and a lever arm beside it (the 150 mm
-offsets) is scaled by the machine's ``lever`` (the optics of a small machine sit closer).
+offsets) is scaled by the machine's ``lever`` (the optics of a small machine sit closer). A
+machine of another chain (the gantry) takes its own: the same lines, multiplied in its order.
 
     python benchmarks/machines.py DIR     # writes DIR/<machine>/<plan>.toml for inspection
 """
@@ -36,6 +37,7 @@ class MachineSize:
     tool_mm: float
     lever: float
     description: str
+    chain: str = "WXYFZT"
 
 
 MACHINES = {
@@ -54,6 +56,16 @@ MACHINES = {
         120.0,
         0.6,
         "a 250 × 200 × 150 mm bench-top mill, 5 mm leads on X and Y, 4 mm on Z, tool 120 mm",
+    ),
+    "gantry": MachineSize(
+        "gantry",
+        {"X": (0.0, 2000.0), "Y": (0.0, 3000.0), "Z": (0.0, 500.0)},
+        {"X": 20.0, "Y": 25.0, "Z": 10.0},
+        200.0,
+        1.5,
+        "a 2000 × 3000 × 500 mm gantry mill (chain WFYXZT: the bridge moves along Y and carries "
+        "the X carriage, which carries Z), 20 mm lead on X, 25 mm on Y, 10 mm on Z, tool 200 mm",
+        "WFYXZT",
     ),
 }
 
@@ -108,7 +120,7 @@ def moved_plan(source: Path, machine: MachineSize) -> str:
         lines.append(moved)
     header = {
         "name": f"{old.get('name', source.stem)}, moved onto {machine.description}",
-        "chain": old.get("chain", "WXYFZT"),
+        "chain": machine.chain,
         "stroke": {a: list(machine.stroke_mm[a]) for a in AXES},
         "screw_lead": dict(machine.screw_lead_mm),
         "tool_offset": [float(c) for c in new_tool],

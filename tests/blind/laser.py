@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .effects import Effect, Readings
-from .machine import AXES, Machine
+from .machine import AXES, PAPER_CHAIN, Machine, chain_axes
 
 # --------------------------------------------------------------------------------------------
 # Plan
@@ -57,6 +57,7 @@ class PlanSpec:
     screw_lead_mm: dict[str, float]
     tool_offset_mm: np.ndarray
     lines: tuple[LineSpec, ...]
+    chain: str = PAPER_CHAIN
 
 
 def read_plan(path: str | Path) -> PlanSpec:
@@ -64,9 +65,11 @@ def read_plan(path: str | Path) -> PlanSpec:
     path = Path(path)
     document = tomllib.loads(path.read_text(encoding="utf-8"))
     machine = document["machine"]
-    chain = machine.get("chain", "WXYFZT")
-    if chain != "WXYFZT":
-        raise ValueError(f"{path}: this generator simulates chain WXYFZT only, not {chain!r}")
+    chain = str(machine.get("chain", PAPER_CHAIN))
+    try:
+        chain_axes(chain)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
     stroke = {a: (float(machine["stroke"][a][0]), float(machine["stroke"][a][1])) for a in AXES}
     reference = None
     if "reference" in machine:
@@ -88,7 +91,7 @@ def read_plan(path: str | Path) -> PlanSpec:
         ))
     return PlanSpec(path, dict(machine), stroke, reference,
                     {k: float(v) for k, v in machine.get("screw_lead", {}).items()}, tool,
-                    tuple(lines))
+                    tuple(lines), chain)
 
 
 def line_length(spec: LineSpec, stroke_mm: dict[str, tuple[float, float]]) -> float:
@@ -143,20 +146,33 @@ def draw_settings(rng: np.random.Generator) -> SessionSettings:
     )
 
 
+#: The longest stroke (mm) on which the operator keeps the drawn stride; on a longer machine the
+#: stride grows in proportion (a 3 m axis is not measured every 8–25 mm).
+STRIDE_STROKE_MM = 1000.0
+
+
+def stride_scale(plan: PlanSpec) -> float:
+    """How much the operator widens the drawn stride on ``plan``'s machine: 1 up to a
+    :data:`STRIDE_STROKE_MM` stroke, then the longest stroke over it."""
+    longest = max(abs(hi - lo) for lo, hi in plan.stroke_mm.values())
+    return max(1.0, longest / STRIDE_STROKE_MM)
+
+
 def targets_along(rng: np.random.Generator, length: float, settings: SessionSettings,
-                  fine: bool) -> np.ndarray:
+                  fine: bool, scale: float = 1.0) -> np.ndarray:
     """Target positions (mm from the datum), first 0 and last ``length``, strictly increasing.
 
     jittered: an even grid near ``stride_mm`` with every interior target moved by up to
     ±jitter·step (ISO 230-2's advice against periodic errors hiding at regular steps);
-    irregular: gaps drawn uniformly in [0.5, 1.5]·stride then rescaled to the length;
+    irregular: gaps drawn uniformly in [0.5, 1.5]·stride then rescaled to the length (the stride
+    is ``stride_mm`` × ``scale``, :func:`stride_scale`);
     fine (axis-parallel linear lines only): a jittered 2.5–6 mm grid, at most 161 targets.
     """
     if fine:
         stride = float(rng.uniform(2.5, 6.0))
         count = min(int(round(length / stride)), 160) + 1
     else:
-        stride = settings.stride_mm
+        stride = settings.stride_mm * scale
         count = max(int(round(length / stride)), 5) + 1
     if settings.spacing == "irregular" and not fine:
         gaps = rng.uniform(0.5, 1.5, count - 1)
@@ -242,7 +258,7 @@ def schedule_session(rng: np.random.Generator, plan: PlanSpec, settings: Session
         length = line_length(spec, plan.stroke_mm)
         fine = (settings.spacing == "fine" and spec.quantity == "linear"
                 and int(np.sum(np.abs(spec.direction) > 1e-9)) == 1)
-        targets = targets_along(rng, length, settings, fine)
+        targets = targets_along(rng, length, settings, fine, stride_scale(plan))
         runs = 2 * settings.runs_per_direction
         k = len(targets)
         times = np.empty((runs, k))

@@ -1,12 +1,17 @@
-"""A rigid-body 3-axis machine of chain "WXYFZT", written from DESIGN.md's conventions only.
+"""A rigid-body 3-axis machine of any serial chain, written from DESIGN.md's conventions only.
 
-Chain (DESIGN.md "Conventions", the paper's eq. 4)::
+Chain (DESIGN.md "Conventions", the paper's eq. 4 for "WXYFZT")::
 
     T = T(x) · E_X(x) · T(y) · E_Y(y) · T(z) · E_Z(z) · T(tool)
 
 so the tool point, in the workpiece frame, is
 
     P = (x,0,0) + δX + R_X [ (0,y,0) + δY + R_Y [ (0,0,z) + δZ + R_Z · t ] ]
+
+Another chain multiplies its axes in its own order, the letters X, Y, Z as the string lists
+them from the workpiece to the tool ("WFYXZT", a gantry whose bridge moves along Y and carries
+X: Y, then X, then Z); where F stands changes nothing (DESIGN.md). An axis' rotation acts
+through the travel of every axis after it and the tool.
 
 with δj the translation errors of axis j and R_j the exact rotation of its three angular errors
 (a rotation vector (εa, εb, εc), turned into a matrix by Rodrigues' formula). Squareness enters the
@@ -39,7 +44,18 @@ ERROR_IDS = {
     for axis in AXES
 }
 SQUARENESS_IDS = ("EC0Y", "EB0Z", "EA0Z")
+#: The chain of the paper's machine, and of every plan that names none.
+PAPER_CHAIN = "WXYFZT"
 ARCSEC_URAD = np.pi / 180 / 3600 * 1e6  # 1″ = 4.848 µrad
+
+
+def chain_axes(chain: str) -> tuple[str, ...]:
+    """The axes of a chain string in product order, from the workpiece to the tool ("WFYXZT" →
+    Y, X, Z); ValueError unless it is W, F, T and the three axes, W first and T last."""
+    letters = str(chain).upper()
+    if sorted(letters) != sorted("WFTXYZ") or letters[0] != "W" or letters[-1] != "T":
+        raise ValueError(f"chain {chain!r}: expected W, the axes X, Y, Z and F in some order, T")
+    return tuple(c for c in letters if c in AXES)
 
 
 def error_kind(error_id: str) -> str:
@@ -186,7 +202,7 @@ class Machine:
     reference_mm: dict[str, float]
     functions: dict[str, SmoothFunction]
     squareness_urad: dict[str, float]
-    chain: str = "WXYFZT"
+    chain: str = PAPER_CHAIN
     extra: dict[str, object] = field(default_factory=dict)
 
     def axis_errors(self, axis: str, position_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -226,15 +242,15 @@ class Machine:
         deltas["Y"][:, 0] += -dy * sq["EC0Y"] * 1e-6
         deltas["Z"][:, 0] += dz * sq["EB0Z"] * 1e-6
         deltas["Z"][:, 1] += -dz * sq["EA0Z"] * 1e-6
-        zeros = np.zeros(n)
-        ex = np.stack([q[:, 0], zeros, zeros], axis=1)
-        ey = np.stack([zeros, q[:, 1], zeros], axis=1)
-        ez = np.stack([zeros, zeros, q[:, 2]], axis=1)
-        inner = ez + deltas["Z"] + np.einsum("nij,nj->ni", rots["Z"], t)
-        middle = ey + deltas["Y"] + np.einsum("nij,nj->ni", rots["Y"], inner)
-        p = ex + deltas["X"] + np.einsum("nij,nj->ni", rots["X"], middle)
+        # from the tool outwards: each axis' travel, its δ, and its rotation of all that follows
+        order = chain_axes(self.chain)
+        p = np.array(t)
+        for axis in reversed(order):
+            travel = np.zeros((n, 3))
+            travel[:, AXES.index(axis)] = q[:, AXES.index(axis)]
+            p = travel + deltas[axis] + np.einsum("nij,nj->ni", rots[axis], p)
         error_um = (p - q - t) * 1e3
-        total = rots["X"] @ rots["Y"] @ rots["Z"]
+        total = rots[order[0]] @ rots[order[1]] @ rots[order[2]]
         return error_um, rotation_vectors(total) * 1e6
 
     def truth(self, step_mm: float = 2.0) -> dict[str, object]:
@@ -265,8 +281,9 @@ def random_machine(
     rng: np.random.Generator,
     stroke_mm: dict[str, tuple[float, float]],
     reference_mm: dict[str, float] | None = None,
+    chain: str = PAPER_CHAIN,
 ) -> Machine:
-    """A machine with random smooth errors of realistic size (REFERENCE.md §4)."""
+    """A machine of ``chain`` with random smooth errors of realistic size (REFERENCE.md §4)."""
     reference = {a: float(stroke_mm[a][0]) for a in AXES}
     if reference_mm:
         reference.update({a: float(v) for a, v in reference_mm.items()})
@@ -279,5 +296,6 @@ def random_machine(
         k: float(rng.choice([-1.0, 1.0]) * rng.uniform(2.0, 10.0) * ARCSEC_URAD)
         for k in SQUARENESS_IDS
     }
+    chain_axes(chain)  # refuses a chain this machine cannot be
     return Machine({a: (float(stroke_mm[a][0]), float(stroke_mm[a][1])) for a in AXES},
-                   reference, functions, squareness)
+                   reference, functions, squareness, chain)

@@ -3,14 +3,18 @@ least-squares projection (used only to grade how visible a drawn effect is).
 
 The first-order model of a reading, linear in the error functions (derived in README.md):
 
-    E = δX + δY + δZ + εX × ((0, y, z) + t) + εY × ((0, 0, z) + t) + εZ × t
+    E = δX + δY + δZ + εX × ((0, y, z) + t) + εY × ((0, 0, z) + t) + εZ × t     (WXYFZT)
         + (−(y − y0)·EC0Y + (z − z0)·EB0Z, −(z − z0)·EA0Z, 0)
     linear: u·E,  straightness: v·E + slope·s,  angular: v·(εX + εY + εZ);  + a zero offset
 
+In another chain each axis' ε acts through the travel of the axes after it ("WFYXZT": εY ×
+((x, 0, z) + t), εX × ((0, 0, z) + t), εZ × t).
+
 Each of the 18 functions is a cubic B-spline with knots about every ``knot_mm`` (50 mm, the
-DESIGN.md default), each basis function shifted to be zero at the reference position; every line
-has its own offset, every straightness line its own slope. A rigid model predicts the same value
-for every run at a target, so the projection works on the per-target means over the runs.
+DESIGN.md default, widened with the targets' stride on a machine longer than 1 m), each basis
+function shifted to be zero at the reference position; every line has its own offset, every
+straightness line its own slope. A rigid model predicts the same value for every run at a
+target, so the projection works on the per-target means over the runs.
 Pure numpy; never imports volucal.
 """
 
@@ -18,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .laser import LineSchedule, PlanSpec
-from .machine import AXES
+from .laser import LineSchedule, PlanSpec, stride_scale
+from .machine import AXES, chain_axes
 
 
 def bspline_basis(x: np.ndarray, lo: float, hi: float, intervals: int) -> np.ndarray:
@@ -47,8 +51,11 @@ def bspline_basis(x: np.ndarray, lo: float, hi: float, intervals: int) -> np.nda
 class RigidProjector:
     """Orthogonal projection of per-target run means on the span of the rigid-body model."""
 
-    def __init__(self, plan: PlanSpec, lines: list[LineSchedule], knot_mm: float = 50.0) -> None:
+    def __init__(self, plan: PlanSpec, lines: list[LineSchedule],
+                 knot_mm: float | None = None) -> None:
         self.lines = lines
+        if knot_mm is None:  # 50 mm, as wide as the targets are on a long machine
+            knot_mm = 50.0 * stride_scale(plan)
         reference = plan.reference_mm or {a: plan.stroke_mm[a][0] for a in AXES}
         bases = {}
         for axis in AXES:
@@ -60,6 +67,10 @@ class RigidProjector:
         self.rows: list[slice] = []
         start = 0
         straight = [i for i, line in enumerate(lines) if line.spec.quantity == "straightness"]
+        # an axis' rotation acts through the travel of the axes after it in the chain
+        order = chain_axes(plan.chain)
+        after = {a: np.array([float(b in order[order.index(a) + 1:]) for b in AXES])
+                 for a in AXES}
         for index, line in enumerate(lines):
             spec = line.spec
             s = line.targets_mm
@@ -71,7 +82,7 @@ class RigidProjector:
             for j, axis in enumerate(AXES):
                 lo, hi, intervals, at_ref = bases[axis]
                 g = bspline_basis(q[:, j], lo, hi, intervals) - at_ref
-                lever = t + {"X": q * [0, 1, 1], "Y": q * [0, 0, 1], "Z": 0 * q}[axis]
+                lever = t + q * after[axis]
                 if spec.quantity == "angular":
                     translation = np.zeros(3)
                     rotation = np.tile(sense, (k, 1))

@@ -32,7 +32,7 @@ from .laser import (
     rtl_text,
     schedule_session,
 )
-from .machine import AXES, Machine, random_machine
+from .machine import AXES, PAPER_CHAIN, Machine, chain_axes, random_machine
 from .rigid_fit import RigidProjector
 
 REPO = Path(__file__).resolve().parents[2]
@@ -135,18 +135,24 @@ def _perpendicular(rng: np.random.Generator, to: np.ndarray) -> np.ndarray:
 
 
 def rigid_family_residual(direction: str, axes: tuple[str, str], values: np.ndarray,
-                          u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """What no rigid-body error could produce of a surface in ``direction`` over ``axes``.
+                          u: np.ndarray, v: np.ndarray, chain: str = PAPER_CHAIN) -> np.ndarray:
+    """What no rigid-body error could produce of a surface in ``direction`` over ``axes`` (u along
+    the first, v along the second).
 
     From the first-order chain (README, "Cross-axis"): on the (a, b) plane a rigid machine
-    produces f(a) + g(b), plus h(a)·b when ``direction`` differs from b (an angular error of the
-    earlier axis a acting through b's travel). The residual of the least-squares projection on
-    that family (polynomials of degree ≤ 4, exact for these surfaces) is returned.
+    produces f(a) + g(b), plus h(a)·b when ``direction`` differs from b, a being the axis earlier
+    in ``chain`` (an angular error of the earlier axis acting through the later one's travel).
+    The residual of the least-squares projection on that family (polynomials of degree ≤ 4,
+    exact for these surfaces) is returned.
     """
     columns = [np.ones_like(u)]
     columns += [u**i for i in range(1, 5)] + [v**j for j in range(1, 5)]
-    if direction != axes[1]:
-        columns += [u**i * v for i in range(1, 5)]
+    order = chain_axes(chain)
+    if order.index(axes[0]) < order.index(axes[1]):
+        if direction != axes[1]:
+            columns += [u**i * v for i in range(1, 5)]
+    elif direction != axes[0]:
+        columns += [v**j * u for j in range(1, 5)]
     a = np.stack([c.ravel() for c in columns], axis=1)
     coef, *_ = np.linalg.lstsq(a, values.ravel(), rcond=None)
     return (values.ravel() - a @ coef).reshape(values.shape)
@@ -163,7 +169,8 @@ def draw_cross_axis(rng: np.random.Generator, plan: PlanSpec, direction: str) ->
         coefficients = {f"{i},{j}": float(rng.normal()) for i, j in chosen}
         values = sum(c * u ** int(k[0]) * v ** int(k[2]) for k, c in coefficients.items())
         peak = float(np.max(np.abs(values)))
-        nonrigid = float(np.max(np.abs(rigid_family_residual(direction, axes, values, u, v))))
+        nonrigid = float(np.max(np.abs(rigid_family_residual(direction, axes, values, u, v,
+                                                             plan.chain))))
         if nonrigid >= 0.4 * peak:
             break
     size = float(rng.uniform(0.5, 5.0))
@@ -415,7 +422,7 @@ def build_scenario(
     start = datetime(2023, 1, 2, tzinfo=UTC).timestamp() + int(rng.integers(0, 900)) * 86400 + int(
         rng.uniform(7.5, 10.0) * 3600)
     session = schedule_session(rng, spec, settings, float(start))
-    machine = random_machine(rng, spec.stroke_mm, spec.reference_mm)
+    machine = random_machine(rng, spec.stroke_mm, spec.reference_mm, spec.chain)
     noise = float(rng.uniform(0.05, 0.5))
     threshold = max(2.5 * noise, 0.4)
     baseline = {line.spec.name: measure_line(machine, [], line) for line in session.lines}

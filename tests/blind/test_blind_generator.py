@@ -49,22 +49,27 @@ def cross_um(eps_urad: np.ndarray, lever_mm: np.ndarray) -> np.ndarray:
 
 def first_order(machine: Machine, q: np.ndarray, tool: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Volumetric error and rotation to first order, derived from
-    T = T(x)·E_X·T(y)·E_Y·T(z)·E_Z·T(tool) with R ≈ I + [ε]×:
+    T = T(x)·E_X·T(y)·E_Y·T(z)·E_Z·T(tool) with R ≈ I + [ε]× (chain WXYFZT):
 
         E = δX + δY + δZ + εX × (0, y, z) + εY × (0, 0, z) + (εX + εY + εZ) × t
             + (−(y − y0)·EC0Y + (z − z0)·EB0Z, −(z − z0)·EA0Z, 0)
         rotation = εX + εY + εZ
+
+    In another order the same product gives each ε acting through the travel of the axes the
+    chain lists after it (written out here by the order's letters, not by the machine's code).
     """
     n = len(q)
     t = np.broadcast_to(tool, (n, 3))
     d, e = {}, {}
     for i, axis in enumerate(AXES):
         d[axis], e[axis] = machine.axis_errors(axis, q[:, i])
-    zeros = np.zeros(n)
-    yz = np.stack([zeros, q[:, 1], q[:, 2]], axis=1)
-    z_only = np.stack([zeros, zeros, q[:, 2]], axis=1)
+    order = [c for c in machine.chain if c in "XYZ"]
     error = d["X"] + d["Y"] + d["Z"]
-    error = error + cross_um(e["X"], yz) + cross_um(e["Y"], z_only)
+    for k, axis in enumerate(order):
+        travel = np.zeros((n, 3))
+        for later in order[k + 1:]:
+            travel[:, "XYZ".index(later)] = q[:, "XYZ".index(later)]
+        error = error + cross_um(e[axis], travel)
     error = error + cross_um(e["X"] + e["Y"] + e["Z"], t)
     sq, ref = machine.squareness_urad, machine.reference_mm
     error[:, 0] += (-(q[:, 1] - ref["Y"]) * sq["EC0Y"] + (q[:, 2] - ref["Z"]) * sq["EB0Z"]) * 1e-3
@@ -87,10 +92,11 @@ def positions(rng: np.random.Generator, n: int) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_exact_chain_agrees_with_first_order_formula(seed: int) -> None:
+@pytest.mark.parametrize("seed, chain", [(0, "WXYFZT"), (1, "WXYFZT"), (2, "WXYFZT"),
+                                         (3, "WFYXZT"), (4, "WYXFZT"), (5, "WZFYXT")])
+def test_exact_chain_agrees_with_first_order_formula(seed: int, chain: str) -> None:
     rng = np.random.default_rng(seed)
-    machine = random_machine(rng, STROKE)
+    machine = random_machine(rng, STROKE, chain=chain)
     q = positions(rng, 300)
     tool = np.array([rng.uniform(-100, 100), rng.uniform(-100, 100), rng.uniform(0, 300)])
     exact, rot = machine.pose_error(q, tool)
@@ -154,6 +160,23 @@ def test_iso_signs_of_squareness_and_lever_arms() -> None:
     e, _ = perfect_machine(EAX=0.1).pose_error(q, none)
     assert e[0] == pytest.approx([0, -0.1 * 100 * 300 * 1e-3, 0.1 * 100 * 200 * 1e-3],
                                  rel=1e-6, abs=1e-4)
+
+
+def test_a_gantrys_bridge_yaw_acts_through_the_carriages_travel() -> None:
+    """"WFYXZT": the bridge (Y) carries the carriage (X), so Y's yaw ECY turns x into y, which it
+    never does in "WXYFZT"; X's yaw turns only the tool's offset."""
+    q = np.array([[300.0, 200.0, 100.0]])
+    none = np.zeros(3)
+    gantry = dataclasses.replace(perfect_machine(ECY=0.1), chain="WFYXZT")
+    e, rot = gantry.pose_error(q, none)
+    # ECY(y) = 0.1 µrad/mm × 200 mm = 20 µrad about Z: (x, 0, 0) → y += 20e-6 · 300 mm
+    assert e[0] == pytest.approx([0, 20e-6 * 300 * 1e3, 0], rel=1e-6, abs=1e-3)  # x: −x·θ²/2
+    assert rot[0] == pytest.approx([0, 0, 20.0], rel=1e-9)
+    assert perfect_machine(ECY=0.1).pose_error(q, none)[0][0] == pytest.approx([0, 0, 0], abs=1e-9)
+    e, _ = dataclasses.replace(perfect_machine(ECX=0.1), chain="WFYXZT").pose_error(q, none)
+    assert e[0] == pytest.approx([0, 0, 0], abs=1e-9)
+    with pytest.raises(ValueError, match="chain 'WXYZT'"):
+        random_machine(np.random.default_rng(0), STROKE, chain="WXYZT")
 
 
 def test_rotation_round_trip() -> None:
@@ -295,6 +318,11 @@ def test_rigid_family_of_cross_axis_surfaces() -> None:
     assert np.max(np.abs(rigid_family_residual("Y", ("X", "Y"), u * v, u, v))) > 0.9
     # EZ(x, y) = x·y²: not rigid either (Y's angles never act through x).
     assert np.max(np.abs(rigid_family_residual("Z", ("X", "Y"), u * v**2, u, v))) > 0.3
+    # On a gantry ("WFYXZT") Y comes first: Y's roll growing along y acting through x is rigid,
+    # X's through y is not.
+    gantry = ("Z", ("X", "Y"))
+    assert np.max(np.abs(rigid_family_residual(*gantry, u * v**2, u, v, "WFYXZT"))) < 1e-10
+    assert np.max(np.abs(rigid_family_residual(*gantry, u**2 * v, u, v, "WFYXZT"))) > 0.3
 
 
 # --------------------------------------------------------------------------------------------
