@@ -146,16 +146,15 @@ def draw_settings(rng: np.random.Generator) -> SessionSettings:
     )
 
 
-#: The longest stroke (mm) on which the operator keeps the drawn stride; on a longer machine the
-#: stride grows in proportion (a 3 m axis is not measured every 8–25 mm).
-STRIDE_STROKE_MM = 1000.0
+#: The longest line (mm) on which the operator keeps the drawn stride; on a longer line the stride
+#: grows in proportion (a 3 m axis is not measured every 8–25 mm).
+STRIDE_LENGTH_MM = 1500.0
 
 
-def stride_scale(plan: PlanSpec) -> float:
-    """How much the operator widens the drawn stride on ``plan``'s machine: 1 up to a
-    :data:`STRIDE_STROKE_MM` stroke, then the longest stroke over it."""
-    longest = max(abs(hi - lo) for lo, hi in plan.stroke_mm.values())
-    return max(1.0, longest / STRIDE_STROKE_MM)
+def stride_scale(length_mm: float) -> float:
+    """How much the operator widens the drawn stride on a line of ``length_mm``: 1 up to
+    :data:`STRIDE_LENGTH_MM`, then the length over it."""
+    return max(1.0, float(length_mm) / STRIDE_LENGTH_MM)
 
 
 def targets_along(rng: np.random.Generator, length: float, settings: SessionSettings,
@@ -258,7 +257,7 @@ def schedule_session(rng: np.random.Generator, plan: PlanSpec, settings: Session
         length = line_length(spec, plan.stroke_mm)
         fine = (settings.spacing == "fine" and spec.quantity == "linear"
                 and int(np.sum(np.abs(spec.direction) > 1e-9)) == 1)
-        targets = targets_along(rng, length, settings, fine, stride_scale(plan))
+        targets = targets_along(rng, length, settings, fine, stride_scale(length))
         runs = 2 * settings.runs_per_direction
         k = len(targets)
         times = np.empty((runs, k))

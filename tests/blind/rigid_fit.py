@@ -11,7 +11,7 @@ In another chain each axis' ε acts through the travel of the axes after it ("WF
 ((x, 0, z) + t), εX × ((0, 0, z) + t), εZ × t).
 
 Each of the 18 functions is a cubic B-spline with knots about every ``knot_mm`` (50 mm, the
-DESIGN.md default, widened with the targets' stride on a machine longer than 1 m), each basis
+DESIGN.md default, widened with the targets' stride on an axis longer than 1.5 m), each basis
 function shifted to be zero at the reference position; every line has its own offset, every
 straightness line its own slope. A rigid model predicts the same value for every run at a
 target, so the projection works on the per-target means over the runs.
@@ -54,13 +54,13 @@ class RigidProjector:
     def __init__(self, plan: PlanSpec, lines: list[LineSchedule],
                  knot_mm: float | None = None) -> None:
         self.lines = lines
-        if knot_mm is None:  # 50 mm, as wide as the targets are on a long machine
-            knot_mm = 50.0 * stride_scale(plan)
         reference = plan.reference_mm or {a: plan.stroke_mm[a][0] for a in AXES}
         bases = {}
         for axis in AXES:
             lo, hi = min(plan.stroke_mm[axis]), max(plan.stroke_mm[axis])
-            intervals = max(int(round((hi - lo) / knot_mm)), 1)
+            # 50 mm, widened as the operator widens the targets' stride on a long axis
+            knots = 50.0 * stride_scale(hi - lo) if knot_mm is None else knot_mm
+            intervals = max(int(round((hi - lo) / knots)), 1)
             bases[axis] = (lo, hi, intervals, bspline_basis(
                 np.array([reference[axis]]), lo, hi, intervals)[0])
         blocks = []

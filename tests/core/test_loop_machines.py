@@ -1,5 +1,6 @@
-"""The loop suite's plans moved onto machines of other sizes (benchmarks/machines.py), and the loop
-on them: every scenario the suite had run was on the paper's 400 × 400 × 350 mm machine."""
+"""The loop suite's plans moved onto machines of other sizes and chains (benchmarks/machines.py),
+and the loop on them: every scenario the suite had run was on the paper's 400 × 400 × 350 mm
+machine."""
 
 from __future__ import annotations
 
@@ -40,6 +41,7 @@ def test_a_moved_plan_keeps_every_line_at_its_place_relative_to_the_strokes(tmp_
     for source, path in moved.items():
         plan = load_plan(path)  # volucal reads it as a user's plan
         assert plan.machine.stroke("X") == machine.stroke_mm["X"]
+        assert plan.machine.chain == machine.chain == read_plan(path).chain
         document = tomllib.loads(path.read_text(encoding="utf-8"))
         assert document["machine"]["screw_lead"] == machine.screw_lead_mm
         assert document["machine"]["tool_offset"] == [0.0, 0.0, machine.tool_mm]
@@ -52,8 +54,15 @@ def test_a_moved_plan_keeps_every_line_at_its_place_relative_to_the_strokes(tmp_
                 for i, axis in enumerate("XYZ"):
                     lo, hi = old.stroke_mm[axis]
                     new_lo, new_hi = machine.stroke_mm[axis]
-                    expected = new_lo + (old_point[i] - lo) * (new_hi - new_lo) / (hi - lo)
-                    assert new_point[i] == pytest.approx(expected, abs=0.02), (source, name, axis)
+                    ratio = (new_hi - new_lo) / (hi - lo)
+                    expected = new_lo + (old_point[i] - lo) * ratio
+                    # each length is floored to 0.01 mm, the old one then scaled by the ratio
+                    tolerance = 0.02 * max(1.0, ratio)
+                    assert new_point[i] == pytest.approx(expected, abs=tolerance), (
+                        source,
+                        name,
+                        axis,
+                    )
         for old_line, new_line in zip(old.lines, read_plan(path).lines, strict=True):
             # the optics keep their place beside the tool, the lever arms scaled by ``lever``
             lever = old_line.reflector_mm - old.tool_offset_mm
