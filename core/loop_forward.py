@@ -105,6 +105,9 @@ def forward(
             leaner = _leaner_surfaces(trials, proposals, options.candidates_per_step)
             proposals = [f for f in proposals if f not in leaner]
             leaner += _narrow_instead(trials, current, kept, len(findings), options)
+            twins = _twin_set_ups(trials, proposals, options)
+            proposals = [f for f in proposals if f not in twins]
+            leaner += twins
             trials += [try_finding(f, fit, kept, current, cv, options) for f in leaner]
             tried += len(trials)
             tried_this_step = on_common_rows(tried_this_step + trials)
@@ -365,6 +368,45 @@ def _drifts_placed_beside(
         if abs(placed - now) <= 1.0 or gain(placed) - gain(now) < stats.chi2.isf(options.alpha, 1):
             continue
         out[index] = replace(effect, time_constant_s=float(np.exp(placed)))
+    return out
+
+
+#: At most this many set-up errors of other lines are refitted for one refused as implausible
+#: (:func:`_twin_set_ups`).
+TWIN_SET_UPS = 2
+
+
+def _twin_set_ups(
+    trials: list[Trial], proposals: list[Finding], options: LoopOptions
+) -> list[Finding]:
+    """For each set-up error of the batch refused as implausible (an Abbe offset, a cosine
+    error): the same kind of error on other lines, not yet refitted, that the diagnosis gives
+    nearly its gain (:func:`nearly_as_strong`), strongest first, at most :data:`TWIN_SET_UPS`.
+
+    Lines that read the same combination of the errors share a set-up error between them: the
+    21 errors split one line's error over both, and the other reads it with the opposite sign.
+    On a gantry (chain WFYXZT) X's yaw does not act through y, so the twelve-line plan's x_lin_1
+    and x_lin_2, 3000 mm apart along Y, read EXX and X's pitch alike: a 3.96 ppm cosine error of
+    x_lin_1 read as x_lin_2 3.96 ppm long, a cosine error there lengthening its line was
+    implausible, x_lin_1's was never refitted, and a surface EX over X×Y took the difference
+    (blind 97047 on the gantry)."""
+    out: list[Finding] = []
+    for trial in trials:
+        effect = trial.finding.effect
+        if trial.verdict != "implausible" or not isinstance(effect, (AbbeOffset, Cosine)):
+            continue
+        twins = sorted(
+            (
+                f
+                for f in proposals
+                if type(f.effect) is type(effect)
+                and f.effect.line_index not in (None, effect.line_index)
+                and f not in out
+                and nearly_as_strong(f, trial.finding.gain, options)
+            ),
+            key=lambda f: -f.gain,
+        )
+        out += twins[:TWIN_SET_UPS]
     return out
 
 

@@ -102,3 +102,21 @@ def test_a_cycle_of_a_third_of_a_small_machines_stroke_is_kept_at_its_period(tmp
     # the stroke's frequency resolution at this period is 58.8² / 200 = 17 mm
     assert kept["parameters"]["period_mm"] == pytest.approx(58.79, abs=1.0)
     assert kept["parameters"]["amplitude_um"] == pytest.approx(3.61, abs=0.2)
+
+
+def test_a_cosine_error_of_a_gantrys_line_is_kept_on_that_line_not_on_its_twin(tmp_path) -> None:
+    # blind 97047 on the 2000 × 3000 × 500 mm gantry (chain WFYXZT), twelve-line plan: a cosine
+    # error of x_lin_1 (−3.96 ppm) at 0.07 µm noise. X's yaw does not act through y there, so
+    # x_lin_1 and x_lin_2, 3000 mm apart along Y, read the same errors: the 21 errors split the
+    # cosine error between them and x_lin_2 read 3.96 ppm long. Its cosine error was refused as
+    # implausible, x_lin_1's was never refitted, and a surface EX over X×Y was kept instead.
+    report, truth = _loop_on("gantry", 97047, tmp_path)
+    (cosine,) = truth["effects"]
+    assert (cosine["kind"], cosine["line"]) == ("cosine", "x_lin_1")
+    (kept,) = report["effects"]
+    assert (kept["kind"], kept["parameters"]["line"]) == ("cosine", "x_lin_1")
+    # fitted to 0.006 ppm (one standard uncertainty): 0.05 ppm is eight of them
+    assert kept["parameters"]["scale_ppm"] == pytest.approx(
+        cosine["parameters"]["scale_ppm"], abs=0.05
+    )
+    assert report["unexplained"] == []
