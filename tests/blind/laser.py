@@ -161,10 +161,10 @@ def targets_along(rng: np.random.Generator, length: float, settings: SessionSett
                   fine: bool, scale: float = 1.0) -> np.ndarray:
     """Target positions (mm from the datum), first 0 and last ``length``, strictly increasing.
 
-    jittered: an even grid near ``stride_mm`` with every interior target moved by up to
+    jittered: an even grid near the stride with every interior target moved by up to
     ±jitter·step (ISO 230-2's advice against periodic errors hiding at regular steps);
     irregular: gaps drawn uniformly in [0.5, 1.5]·stride then rescaled to the length (the stride
-    is ``stride_mm`` × ``scale``, :func:`stride_scale`);
+    of both is ``stride_mm`` × ``scale``, :func:`stride_scale`);
     fine (axis-parallel linear lines only): a jittered 2.5–6 mm grid, at most 161 targets.
     """
     if fine:
