@@ -102,13 +102,14 @@ def forward(
                 break
             proposals = [f for f in proposals if f not in batch]
             trials = [try_finding(f, fit, kept, current, cv, options) for f in batch]
+            # refitted beside the batch: its surfaces' leaner variants, a narrower bump, the
+            # twins of a set-up error it refused as implausible
             leaner = _leaner_surfaces(trials, proposals, options.candidates_per_step)
             proposals = [f for f in proposals if f not in leaner]
-            leaner += _narrow_instead(trials, current, kept, len(findings), options)
             twins = _twin_set_ups(trials, proposals, options)
             proposals = [f for f in proposals if f not in twins]
-            leaner += twins
-            trials += [try_finding(f, fit, kept, current, cv, options) for f in leaner]
+            more = leaner + _narrow_instead(trials, current, kept, len(findings), options) + twins
+            trials += [try_finding(f, fit, kept, current, cv, options) for f in more]
             tried += len(trials)
             tried_this_step = on_common_rows(tried_this_step + trials)
             trials = tried_this_step[-len(trials) :]
